@@ -1,0 +1,112 @@
+"""Static configuration: a frozen, hashable value that selects what gets traced."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+BROADPHASES = ("auto", "dense", "grid")
+
+# Below this many bodies per world, dense all-pairs candidates are used by "auto".
+DENSE_MAX_BODIES = 1024
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+  """Everything that shapes the compiled step. Frozen and hashable: pass it as a
+  static argument; two equal configs share one compiled function.
+
+  Attributes:
+    dt: time step in seconds.
+    gravity: `(gx, gy)` acceleration applied to movable bodies.
+    depth: chain depth K, how many links beyond the direct contact a push (and the
+      mass behind it) travels in one pass. `0` is plain pairwise Jacobi; a chain of
+      L boxes is resolved exactly in one pass when `depth >= L`.
+    iterations: resolution passes per (sub)step.
+    friction: Coulomb coefficient mu shared by all contacts (0 switches it off).
+    broadphase: `"dense"` (all pairs), `"grid"` or `"auto"` (dense below
+      `DENSE_MAX_BODIES`; until the grid lands, "grid" also uses dense pairs).
+    substeps: sub-steps of `dt / substeps` per step.
+    skin: bodies closer than this along the contact axis are chain links: a push
+      travels through a row of touching boxes in the same pass.
+    immovable: whether the scene may hold immovable bodies (inverse mass 0). With
+      `False` the "leans on something immovable" flag is not traced at all; only
+      set it when no active body has infinite mass.
+  """
+
+  dt: float = 1 / 60
+  gravity: tuple[float, float] = (0.0, -9.81)
+  depth: int = 8
+  iterations: int = 1
+  friction: float = 0.0
+  broadphase: str = "auto"
+  substeps: int = 1
+  skin: float = 1e-4
+  immovable: bool = True
+
+  def __post_init__(self):
+    g = tuple(float(x) for x in np.asarray(self.gravity, dtype=float).reshape(-1))
+    if len(g) != 2 or not all(math.isfinite(x) for x in g):
+      raise ValueError(f"Config.gravity: expected two finite numbers, got {self.gravity!r}")
+    object.__setattr__(self, "gravity", g)
+    for name in ("dt", "friction", "skin"):
+      v = getattr(self, name)
+      if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"Config.{name}: expected a finite number, got {v!r}")
+      object.__setattr__(self, name, float(v))
+    if self.dt <= 0:
+      raise ValueError(f"Config.dt: must be > 0, got {self.dt}")
+    if self.friction < 0:
+      raise ValueError(f"Config.friction: must be >= 0, got {self.friction}")
+    if self.skin < 0:
+      raise ValueError(f"Config.skin: must be >= 0, got {self.skin}")
+    for name, lo in (("depth", 0), ("iterations", 1), ("substeps", 1)):
+      v = getattr(self, name)
+      if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+        raise ValueError(f"Config.{name}: expected an integer >= {lo}, got {v!r}")
+      object.__setattr__(self, name, int(v))
+    if self.broadphase not in BROADPHASES:
+      raise ValueError(f"Config.broadphase: expected one of {BROADPHASES}, got {self.broadphase!r}")
+    if not isinstance(self.immovable, bool):
+      raise ValueError(f"Config.immovable: expected a bool, got {self.immovable!r}")
+
+  @property
+  def has_gravity(self) -> bool:
+    return self.gravity != (0.0, 0.0)
+
+  @property
+  def has_friction(self) -> bool:
+    return self.friction > 0.0
+
+  def replace(self, **changes) -> Config:
+    """A copy with some fields changed (validated again)."""
+    return dataclasses.replace(self, **changes)
+
+  @classmethod
+  def for_world(cls, world, **overrides) -> Config:
+    """A config that leaves out what `world` does not use.
+
+    Looks at the (host) world, or a padded batch of worlds, and switches off:
+    immovable-body handling when no active body is immovable, and chain depth
+    beyond the number of movable bodies (no chain can be longer). Gravity and
+    friction are whatever the overrides say (gravity defaults on, friction off);
+    with zero gravity or friction their code is not traced. `broadphase="auto"`
+    picks dense pairs for small worlds. Explicit `overrides` always win.
+
+    Examples:
+      >>> import jaxchain as jc
+      >>> w = jc.World.create([[0.0, 0.0], [0.9, 0.0]], [0.5, 0.5], 1.0)
+      >>> cfg = jc.Config.for_world(w, gravity=(0.0, 0.0))
+      >>> cfg.immovable, cfg.depth, cfg.has_gravity
+      (False, 2, False)
+    """
+    active = np.asarray(world.active)
+    inv_mass = np.asarray(world.inv_mass)
+    n_movable = int(np.max(np.sum(active & (inv_mass > 0), axis=-1), initial=0))
+    has_immovable = bool(np.any(active & (inv_mass == 0)))
+    base = cls(**{k: v for k, v in overrides.items() if k not in ("depth", "immovable")})
+    derived = dict(depth=min(cls.depth, max(n_movable, 1)), immovable=has_immovable)
+    derived.update({k: v for k, v in overrides.items() if k in derived})
+    return base.replace(**derived)

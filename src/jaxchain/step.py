@@ -1,0 +1,182 @@
+"""Time stepping: integrate, resolve, update velocities, friction; and rollouts.
+
+`step` is a flat pipeline of small stages. Every stage that a config switches
+off (gravity, friction, immovable handling, substeps) is left out by a Python
+`if` on the static config, so it is not traced at all.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxchain import broadphase, chain, geometry
+from jaxchain.config import Config
+from jaxchain.world import World
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Trajectory:
+  """Per-step states of a rollout.
+
+  Attributes:
+    pos: `[t, n, 2]` centres after each step.
+    vel: `[t, n, 2]` velocities after each step.
+  """
+
+  pos: jax.Array
+  vel: jax.Array
+
+
+def _check_single(world: World, fn: str) -> None:
+  if world.pos.ndim != 2:
+    raise ValueError(
+        f"{fn}: expected a single world with pos of shape (n, 2), got {world.pos.shape}; "
+        f"for a batch use jax.vmap({fn}, in_axes=(0, None)) or functools.partial(jc.{fn}, config=cfg)")
+
+
+def _resolve_positions(world: World, pos: jax.Array, config: Config) -> jax.Array:
+  """Positions after `config.iterations` chain passes over one candidate table."""
+  cand = broadphase.candidates(world, config)
+  mass = chain.body_mass(world.inv_mass, world.active)
+  immovable = ~world.movable
+  pass_fn = functools.partial(
+      chain.displacement, half=world.half, mass=mass, immovable=immovable, cand=cand,
+      depth=config.depth, skin=config.skin, track_immovable=config.immovable)
+  return lax.fori_loop(0, config.iterations, lambda _, p: p + pass_fn(p), pos)
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def resolve(world: World, config: Config) -> World:
+  """Collision resolution only: moves bodies out of each other, velocities untouched.
+
+  Args:
+    world: a single world (use `jax.vmap` for a batch).
+    config: static configuration (`depth`, `iterations`, `skin`, `immovable`).
+
+  Returns:
+    The world with resolved positions. Immovable and inactive bodies do not move.
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> w = jc.World.create([[0.0, 0.0], [0.9, 0.0], [1.9, 0.0]], [0.5, 0.5],
+    ...                     [1.0, 1.0, float("inf")])
+    >>> jc.resolve(w, jc.Config()).pos[:, 0].round(4).tolist()
+    [-0.1, 0.9, 1.9]
+  """
+  _check_single(world, "resolve")
+  return dataclasses.replace(world, pos=_resolve_positions(world, world.pos, config))
+
+
+def _substep(world: World, config: Config, h: float, accel: jax.Array | None) -> World:
+  movable = world.movable[:, None]
+  vel = world.vel
+  if accel is not None:
+    vel = vel + jnp.where(world.active[:, None], accel * h, 0.0)
+  if config.has_gravity:
+    vel = vel + jnp.where(movable, jnp.asarray(config.gravity, vel.dtype) * h, 0.0)
+  predicted = world.pos + jnp.where(world.active[:, None], vel * h, 0.0)
+  resolved = _resolve_positions(world, predicted, config)
+  push = resolved - predicted
+  # A body stopped by a contact loses its velocity into it; a pushed body moves
+  # with its pusher (position-based velocity update).
+  vel = vel + push / h
+  if config.has_friction:
+    vel = _friction(world, resolved, vel, push, config, h)
+  return dataclasses.replace(world, pos=resolved, vel=vel)
+
+
+def _friction(world: World, pos, vel, push, config: Config, h: float) -> jax.Array:
+  """Coulomb friction, Jacobi style, per body.
+
+  The normal impulse of body i along an axis is taken as its own resolution
+  velocity change along that axis, `|push| / h`; friction reduces i's velocity
+  along the other (tangent) axis, relative to the mean tangent velocity of the
+  bodies it is linked to along the normal axis, by at most `mu` times that. A box
+  sliding at `v0` on a floor stops after about `v0**2 / (2 mu g)`.
+  """
+  cand = broadphase.candidates(world, config)
+  c = geometry.contacts(pos, world.half, cand, config.skin)
+  normal_is_y = c.direction >= 2  # [n, m]
+  out = []
+  for tangent in (0, 1):  # A loop over the two axes, not over bodies.
+    along_normal = c.link & (normal_is_y if tangent == 0 else ~normal_is_y)
+    count = jnp.sum(along_normal, axis=-1)
+    ref = chain.safe_divide(jnp.sum(jnp.where(along_normal, vel[cand.idx, tangent], 0.0), -1),
+                            count.astype(vel.dtype))
+    rel = vel[:, tangent] - ref
+    budget = config.friction * jnp.abs(push[:, 1 - tangent]) / h
+    out.append(vel[:, tangent] - jnp.sign(rel) * jnp.minimum(jnp.abs(rel), budget))
+  return jnp.where(world.movable[:, None], jnp.stack(out, axis=-1), vel)
+
+
+def _step(world: World, config: Config, accel: jax.Array | None) -> World:
+  h = config.dt / config.substeps
+  if config.substeps == 1:
+    return _substep(world, config, h, accel)
+  return lax.fori_loop(0, config.substeps, lambda _, w: _substep(w, config, h, accel), world)
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def step(world: World, config: Config, accel: jax.Array | None = None) -> World:
+  """One time step: gravity and `accel`, semi-implicit Euler, chain resolution,
+  velocity update, friction; `config.substeps` times with `dt / substeps`.
+
+  Args:
+    world: a single world (use `jax.vmap` for a batch).
+    config: static configuration.
+    accel: optional `[n, 2]` external acceleration for this step (a player's
+      input, say); applied to every active body, immovable ones included (that is
+      how a kinematic platform is driven).
+
+  Returns:
+    The world after `config.dt`.
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> w = jc.World.create([[0.0, 1.0], [0.0, -0.5]], [[0.5, 0.5], [5.0, 0.5]], [1.0, float("inf")])
+    >>> w = jc.step(w, jc.Config())
+    >>> float(w.pos[0, 1]), float(w.vel[0, 1])  # rests on the floor, stopped by it
+    (0.5, 0.0)
+  """
+  _check_single(world, "step")
+  return _step(world, config, accel)
+
+
+def make_step(config: Config):
+  """Returns `step_fn(world, accel=None) -> world`, jitted once for `config`."""
+  return jax.jit(lambda world, accel=None: _step(world, config, accel))
+
+
+@functools.partial(jax.jit, static_argnames=("config", "n_steps"))
+def rollout(world: World, config: Config, n_steps: int,
+            controls: jax.Array | None = None) -> tuple[World, Trajectory]:
+  """`n_steps` steps under `lax.scan`.
+
+  Args:
+    world: a single world (use `jax.vmap` for a batch).
+    config: static configuration.
+    n_steps: number of steps (static).
+    controls: optional accelerations, `[n_steps, n, 2]` (one per step) or
+      `[n, 2]` (the same every step).
+
+  Returns:
+    `(final_world, trajectory)` with `trajectory.pos` of shape `[n_steps, n, 2]`.
+  """
+  _check_single(world, "rollout")
+  if controls is not None and controls.ndim == 2:
+    controls = jnp.broadcast_to(controls, (n_steps,) + controls.shape)
+  if controls is not None and controls.shape != (n_steps,) + world.pos.shape:
+    raise ValueError(f"rollout: controls must have shape {(n_steps,) + world.pos.shape} "
+                     f"or {world.pos.shape}, got {controls.shape}")
+
+  def body(w, accel):
+    w = _step(w, config, accel)
+    return w, Trajectory(pos=w.pos, vel=w.vel)
+
+  return lax.scan(body, world, controls, length=n_steps)

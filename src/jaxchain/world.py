@@ -1,0 +1,162 @@
+"""The world: a pytree of per-body arrays, validated on the host."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class World:
+  """State of one world (or, with a leading axis, a batch of worlds).
+
+  Attributes:
+    pos: `[n, 2]` float array, box centres.
+    vel: `[n, 2]` float array, velocities.
+    half: `[n, 2]` float array, half-extents, all `> 0`.
+    inv_mass: `[n]` float array, `1 / mass`; `0` marks an immovable body (a wall,
+      or a kinematic platform that moves only by its own velocity).
+    active: `[n]` bool array; padding slots are `False` and never collide or move.
+  """
+
+  pos: jax.Array
+  vel: jax.Array
+  half: jax.Array
+  inv_mass: jax.Array
+  active: jax.Array
+
+  @property
+  def num_bodies(self) -> int:
+    """Capacity `n` (active and padding slots), from the static shape."""
+    return self.pos.shape[-2]
+
+  @property
+  def movable(self) -> jax.Array:
+    """`[n]` bool: active bodies with finite mass."""
+    return self.active & (self.inv_mass > 0)
+
+  @classmethod
+  def create(cls, pos, half, mass, vel=None, active=None) -> World:
+    """Builds a world from host data, checking every field.
+
+    Args:
+      pos: `[n, 2]` centres.
+      half: `[n, 2]` half-extents, or `[2]` for one size shared by all bodies.
+      mass: `[n]` masses in `(0, inf]`, or a scalar; `inf` means immovable.
+      vel: optional `[n, 2]` velocities (default zero).
+      active: optional `[n]` bool mask (default all active).
+
+    Returns:
+      A float32 `World` (float64 if x64 is enabled).
+
+    Raises:
+      ValueError: naming the field and the problem, for NaN/inf positions or
+        velocities, half-extents `<= 0`, mass `<= 0` or NaN, or arrays of the
+        wrong rank, shape or length.
+
+    Examples:
+      >>> import jaxchain as jc
+      >>> w = jc.World.create([[0.0, 0.0], [1.5, 0.0]], [0.5, 0.5], [1.0, float("inf")])
+      >>> w.pos.shape, w.inv_mass.tolist()
+      ((2, 2), [1.0, 0.0])
+    """
+    pos = _as_float("pos", pos)
+    if pos.ndim != 2 or pos.shape[1] != 2:
+      raise ValueError(f"pos: expected shape (n, 2), got {pos.shape}")
+    n = pos.shape[0]
+    half = _as_float("half", half)
+    if half.shape == (2,):
+      half = np.broadcast_to(half, (n, 2))
+    if half.shape != (n, 2):
+      raise ValueError(f"half: expected shape ({n}, 2) or (2,) to match pos, got {half.shape}")
+    mass = _as_float("mass", mass)
+    if mass.ndim == 0:
+      mass = np.broadcast_to(mass, (n,))
+    if mass.shape != (n,):
+      raise ValueError(f"mass: expected shape ({n},) or a scalar to match pos, got {mass.shape}")
+    vel = np.zeros((n, 2)) if vel is None else _as_float("vel", vel)
+    if vel.shape != (n, 2):
+      raise ValueError(f"vel: expected shape ({n}, 2) to match pos, got {vel.shape}")
+    active = np.ones(n, bool) if active is None else np.asarray(active)
+    if active.shape != (n,) or active.dtype != bool:
+      raise ValueError(f"active: expected a bool array of shape ({n},), got {active.dtype} {active.shape}")
+    _check_finite("pos", pos)
+    _check_finite("vel", vel)
+    _check_finite("half", half)
+    if np.any(half <= 0):
+      raise ValueError(f"half: half-extents must be > 0; bodies {_where(half <= 0)} are not")
+    if np.any(np.isnan(mass)):
+      raise ValueError(f"mass: NaN mass for bodies {_where(np.isnan(mass))}")
+    if np.any(mass <= 0):
+      raise ValueError(
+          f"mass: masses must be > 0 (use inf for immovable); bodies {_where(mass <= 0)} are not")
+    with np.errstate(divide="ignore"):
+      inv_mass = np.where(np.isinf(mass), 0.0, 1.0 / mass)
+    dtype = jnp.asarray(0.0).dtype
+    f = lambda x: jnp.asarray(x, dtype)
+    return cls(pos=f(pos), vel=f(vel), half=f(half), inv_mass=f(inv_mass),
+               active=jnp.asarray(active))
+
+  def pad(self, capacity: int) -> World:
+    """Pads a single world with inactive slots up to `capacity` bodies.
+
+    Padding slots are immovable, inactive unit boxes at the origin: they never
+    collide and never move.
+    """
+    n = self.num_bodies
+    if self.pos.ndim != 2:
+      raise ValueError(f"pad: expected a single world (pos of rank 2), got pos {self.pos.shape}")
+    if capacity < n:
+      raise ValueError(f"pad: capacity {capacity} is smaller than the {n} bodies in the world")
+    extra = capacity - n
+    cat = lambda x, fill: jnp.concatenate([x, jnp.full((extra,) + x.shape[1:], fill, x.dtype)])
+    return World(pos=cat(self.pos, 0), vel=cat(self.vel, 0), half=cat(self.half, 1),
+                 inv_mass=cat(self.inv_mass, 0), active=cat(self.active, False))
+
+
+def stack(worlds: Sequence[World], capacity: int | None = None) -> World:
+  """Batches worlds of different body counts into one padded batch.
+
+  Args:
+    worlds: single worlds (rank-2 `pos`).
+    capacity: bodies per world after padding; default the largest world.
+
+  Returns:
+    A `World` whose arrays have a leading batch axis `[len(worlds), capacity, ...]`,
+    with `active` marking the real bodies. Use it with `jax.vmap`.
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> a = jc.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0)
+    >>> b = jc.World.create([[0.0, 0.0], [2.0, 0.0]], [0.5, 0.5], 1.0)
+    >>> jc.stack([a, b]).active.tolist()
+    [[True, False], [True, True]]
+  """
+  if not worlds:
+    raise ValueError("stack: need at least one world")
+  capacity = max(w.num_bodies for w in worlds) if capacity is None else capacity
+  padded = [w.pad(capacity) for w in worlds]
+  return jax.tree.map(lambda *xs: jnp.stack(xs), *padded)
+
+
+def _as_float(name: str, x) -> np.ndarray:
+  try:
+    return np.asarray(x, dtype=np.float64)
+  except (TypeError, ValueError) as e:
+    raise ValueError(f"{name}: cannot convert to a float array ({e})") from None
+
+
+def _check_finite(name: str, x: np.ndarray) -> None:
+  bad = ~np.isfinite(x)
+  if bad.any():
+    raise ValueError(f"{name}: NaN or inf for bodies {_where(bad.reshape(len(x), -1).any(1))}")
+
+
+def _where(mask: np.ndarray) -> list[int]:
+  idx = np.flatnonzero(mask.reshape(mask.shape[0], -1).any(1) if mask.ndim > 1 else mask)
+  return idx[:10].tolist() + (["..."] if len(idx) > 10 else [])
