@@ -68,11 +68,3 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float) -> 
   depth = jnp.where(link, jnp.maximum(o_axis, 0.0), 0.0)
   return Contacts(link=link, direction=direction, depth=depth)
 
-
-def max_penetration(pos: jax.Array, half: jax.Array, active: jax.Array) -> jax.Array:
-  """Largest penetration depth (along the smaller-overlap axis) over all active
-  pairs of one world, dense O(n^2); 0 when nothing overlaps."""
-  o = overlap(pos[:, None, :], half[:, None, :], pos[None], half[None])
-  depth = jnp.maximum(jnp.minimum(o[..., 0], o[..., 1]), 0.0)
-  pair = active[:, None] & active[None, :] & ~jnp.eye(pos.shape[0], dtype=bool)
-  return jnp.max(jnp.where(pair, depth, 0.0), initial=0.0)

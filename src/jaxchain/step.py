@@ -83,9 +83,11 @@ def _substep(world: World, config: Config, h: float, accel: jax.Array | None) ->
   predicted = world.pos + jnp.where(world.active[:, None], vel * h, 0.0)
   resolved = _resolve_positions(world, predicted, config)
   push = resolved - predicted
-  # A body stopped by a contact loses its velocity into it; a pushed body moves
-  # with its pusher (position-based velocity update).
-  vel = vel + push / h
+  # Position-based velocity update, perfectly inelastic: a body stopped by a contact
+  # loses its velocity into it, a pushed body moves on with its pusher, and no
+  # resolution reverses a velocity (that would turn penetration recovery into a bounce).
+  moved = vel + push / h
+  vel = jnp.where(vel * moved < 0, 0.0, moved)
   if config.has_friction:
     vel = _friction(world, resolved, vel, push, config, h)
   return dataclasses.replace(world, pos=resolved, vel=vel)
