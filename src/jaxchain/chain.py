@@ -78,9 +78,9 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   # 2. Backing: unit mass (and immovable flag) in front of each body, K hops.
   def backing_hop(_, carry):
     unit_mass, leans = carry
-    unit_mass = mass + jnp.sum(jnp.where(front, unit_mass[:, nbr], 0.0), axis=-1)
+    unit_mass = mass[None] + jnp.sum(jnp.where(front, unit_mass[:, nbr], 0.0), axis=-1)
     if track_immovable:
-      leans = immovable | jnp.any(front & leans[:, nbr], axis=-1)
+      leans = immovable[None] | jnp.any(front & leans[:, nbr], axis=-1)
     return unit_mass, leans
 
   unit_mass = jnp.broadcast_to(mass, front.shape[:2])
@@ -104,7 +104,7 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
 
   def push_hop(_, disp):
     pushed = jnp.where(back, disp[:, nbr] + share[None], 0.0)
-    return jnp.where(movable, jnp.max(pushed, axis=-1, initial=0.0), 0.0)
+    return jnp.where(movable[None], jnp.max(pushed, axis=-1, initial=0.0), 0.0)
 
   disp = jnp.zeros(front.shape[:2], pos.dtype)
   disp = lax.fori_loop(0, depth + 1, push_hop, disp)

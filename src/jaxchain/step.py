@@ -79,7 +79,7 @@ def _substep(world: World, config: Config, h: float, accel: jax.Array | None) ->
   if accel is not None:
     vel = vel + jnp.where(world.active[:, None], accel * h, 0.0)
   if config.has_gravity:
-    vel = vel + jnp.where(movable, jnp.asarray(config.gravity, vel.dtype) * h, 0.0)
+    vel = vel + jnp.where(movable, jnp.asarray(config.gravity, vel.dtype)[None] * h, 0.0)
   predicted = world.pos + jnp.where(world.active[:, None], vel * h, 0.0)
   resolved = _resolve_positions(world, predicted, config)
   push = resolved - predicted
