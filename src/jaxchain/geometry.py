@@ -63,7 +63,7 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float) -> 
   d_axis = jnp.where(use_y, delta[..., 1], delta[..., 0])
   self_idx = jnp.arange(n, dtype=cand.idx.dtype)[:, None]
   positive = (d_axis > 0) | ((d_axis == 0) & (cand.idx > self_idx))
-  link = cand.mask & (o_other > 0) & (o_axis > -skin)
+  link = cand.mask & (o_other > 0) & (o_axis >= -skin)
   direction = 2 * use_y.astype(jnp.int32) + (~positive).astype(jnp.int32)
   depth = jnp.where(link, jnp.maximum(o_axis, 0.0), 0.0)
   return Contacts(link=link, direction=direction, depth=depth)

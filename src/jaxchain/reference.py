@@ -71,7 +71,7 @@ class _Scene:
       if j == i:
         continue
       ax, s, o_axis, o_other = self.contact(i, j)
-      if ax == axis and s == sign and o_other > 0 and o_axis > -self.skin:
+      if ax == axis and s == sign and o_other > 0 and o_axis >= -self.skin:
         out.append(j)
     return out
 

@@ -66,7 +66,7 @@ def resolve(world: World, config: Config) -> World:
     >>> import jaxchain as jc
     >>> w = jc.World.create([[0.0, 0.0], [0.9, 0.0], [1.9, 0.0]], [0.5, 0.5],
     ...                     [1.0, 1.0, float("inf")])
-    >>> jc.resolve(w, jc.Config()).pos[:, 0].round(4).tolist()
+    >>> [round(float(x), 4) for x in jc.resolve(w, jc.Config()).pos[:, 0]]
     [-0.1, 0.9, 1.9]
   """
   _check_single(world, "resolve")
@@ -141,7 +141,7 @@ def step(world: World, config: Config, accel: jax.Array | None = None) -> World:
 
   Examples:
     >>> import jaxchain as jc
-    >>> w = jc.World.create([[0.0, 1.0], [0.0, -0.5]], [[0.5, 0.5], [5.0, 0.5]], [1.0, float("inf")])
+    >>> w = jc.World.create([[0.0, 0.5], [0.0, -0.5]], [[0.5, 0.5], [5.0, 0.5]], [1.0, float("inf")])
     >>> w = jc.step(w, jc.Config())
     >>> float(w.pos[0, 1]), float(w.vel[0, 1])  # rests on the floor, stopped by it
     (0.5, 0.0)

@@ -1,0 +1,71 @@
+"""Config: frozen, hashable, validated; for_world leaves out what a scene does not use."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+import jaxchain as jc
+from jaxchain import scenes
+
+
+def test_frozen_and_hashable_by_value():
+  a, b = jc.Config(depth=3, gravity=[0.0, -1.0]), jc.Config(depth=3, gravity=(0.0, -1.0))
+  assert a == b and hash(a) == hash(b)
+  assert a != jc.Config(depth=4, gravity=(0.0, -1.0))
+  with pytest.raises(dataclasses.FrozenInstanceError):
+    a.depth = 5
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(dt=0.0), "Config.dt: must be > 0"),
+    (dict(dt=float("nan")), "Config.dt: expected a finite number"),
+    (dict(depth=-1), "Config.depth: expected an integer >= 0"),
+    (dict(depth=2.5), "Config.depth: expected an integer"),
+    (dict(iterations=0), "Config.iterations: expected an integer >= 1"),
+    (dict(substeps=0), "Config.substeps"),
+    (dict(friction=-0.1), "Config.friction: must be >= 0"),
+    (dict(gravity=(0.0,)), "Config.gravity: expected two finite numbers"),
+    (dict(gravity=(0.0, float("inf"))), "Config.gravity"),
+    (dict(broadphase="octree"), "Config.broadphase: expected one of"),
+    (dict(skin=-1.0), "Config.skin: must be >= 0"),
+    (dict(immovable=1), "Config.immovable: expected a bool"),
+])
+def test_bad_config_raises_a_clear_error(kwargs, match):
+  with pytest.raises(ValueError, match=match):
+    jc.Config(**kwargs)
+
+
+def test_for_world_switches_off_unused_features():
+  free = scenes.push_chain(3, wall=False).world()
+  cfg = jc.Config.for_world(free, gravity=(0.0, 0.0))
+  assert cfg.immovable is False and cfg.depth == 4 and not cfg.has_gravity
+  assert not cfg.has_friction
+  walled = scenes.push_chain(20, wall=True).world()
+  cfg = jc.Config.for_world(walled, friction=0.5)
+  assert cfg.immovable is True and cfg.depth == jc.Config.depth and cfg.has_friction
+  assert jc.Config.for_world(walled, depth=32).depth == 32  # Overrides win.
+
+
+def test_for_world_on_a_padded_batch_looks_at_active_bodies_only():
+  small = scenes.push_chain(1, wall=False).world()
+  big = scenes.push_chain(5, wall=False).world()
+  cfg = jc.Config.for_world(jc.stack([small, big]))
+  assert cfg.immovable is False  # Padding is immovable but inactive.
+  assert cfg.depth == 6
+
+
+def _jaxpr_lines(config, world):
+  return str(jax.make_jaxpr(lambda w: jc.step(w, config))(world)).count("\n")
+
+
+@pytest.mark.parametrize("feature", [
+    dict(gravity=(0.0, -9.81)), dict(friction=0.5), dict(immovable=True), dict(substeps=2),
+])
+def test_switched_off_features_are_not_traced(feature):
+  world = scenes.push_chain(3, wall=False).world()
+  lean = jc.Config.for_world(world, gravity=(0.0, 0.0))
+  assert (lean.has_gravity, lean.has_friction, lean.immovable, lean.substeps) == (
+      False, False, False, 1)
+  assert _jaxpr_lines(lean, world) < _jaxpr_lines(lean.replace(**feature), world)

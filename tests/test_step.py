@@ -1,0 +1,170 @@
+"""Time stepping: integration, velocity update, friction, rollouts, transforms."""
+
+import dataclasses
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxchain as jc
+from jaxchain import scenes
+from tests.helpers import TOL
+
+INF = np.inf
+G = 9.81
+DT = 1 / 60
+
+
+def box_on_floor(vx=0.0, mass=1.0):
+  """Body 0: unit box resting on body 1, a long immovable floor (top at y = 0)."""
+  return jc.World.create([[0.0, 0.5], [0.0, -0.5]], [[0.5, 0.5], [50.0, 0.5]], [mass, INF],
+                         vel=[[vx, 0.0], [0.0, 0.0]])
+
+
+def test_free_fall_is_semi_implicit_euler():
+  world = jc.World.create([[0.0, 10.0]], [0.5, 0.5], 1.0)
+  n = 30
+  final, traj = jc.rollout(world, jc.Config(), n)
+  k = np.arange(1, n + 1)
+  np.testing.assert_allclose(traj.pos[:, 0, 1], 10.0 - G * DT**2 * k * (k + 1) / 2, rtol=1e-5)
+  np.testing.assert_allclose(final.vel[0, 1], -G * DT * n, rtol=1e-5)
+
+
+def test_resting_stack_stays_put():
+  scene = scenes.stack(6, overlaps=0.0)
+  world = scene.world()
+  config = jc.Config.for_world(world, friction=0.5)
+  final, traj = jc.rollout(world, config, 240)
+  worst = jax.vmap(lambda p: jc.metrics.max_penetration(dataclasses.replace(world, pos=p)))(traj.pos)
+  assert float(jnp.max(worst)) < 1e-5
+  np.testing.assert_allclose(final.pos, world.pos, atol=1e-5)
+  np.testing.assert_allclose(final.vel, 0.0, atol=1e-4)
+
+
+def test_landing_box_stops_on_the_floor_without_bouncing():
+  world = jc.World.create([[0.0, 3.0], [0.0, -0.5]], [[0.5, 0.5], [50.0, 0.5]], [1.0, INF])
+  _, traj = jc.rollout(world, jc.Config(), 120)
+  y, vy = np.asarray(traj.pos[:, 0, 1]), np.asarray(traj.vel[:, 0, 1])
+  assert y.min() > 0.5 - 1e-5  # Never sinks into the floor.
+  landed = np.argmax(y <= 0.5 + 1e-6)
+  assert landed > 0
+  np.testing.assert_allclose(y[landed:], 0.5, atol=1e-5)
+  assert vy.max() <= 0.0  # Never bounces up.
+  np.testing.assert_array_equal(vy[landed + 1:], 0.0)  # Stopped by the contact.
+
+
+@pytest.mark.parametrize("v0, mu", [(3.0, 0.5), (2.0, 0.2)])
+def test_friction_stopping_distance(v0, mu):
+  config = jc.Config(friction=mu)
+  final, traj = jc.rollout(box_on_floor(vx=v0), config, 240)
+  distance = float(final.pos[0, 0])
+  # Discrete Coulomb deceleration mu*g per step: v0^2/(2 mu g) up to one step's travel.
+  assert abs(distance - v0**2 / (2 * mu * G)) < v0 * DT
+  assert float(final.vel[0, 0]) == 0.0
+  np.testing.assert_allclose(traj.pos[:, 0, 1], 0.5, atol=1e-5)
+
+
+def test_without_friction_a_box_keeps_sliding():
+  final, _ = jc.rollout(box_on_floor(vx=2.0), jc.Config(friction=0.0), 60)
+  np.testing.assert_allclose(final.vel[0, 0], 2.0, rtol=1e-6)
+  np.testing.assert_allclose(final.pos[0, 0], 2.0, rtol=1e-5)
+
+
+def test_head_on_push_is_perfectly_inelastic_and_keeps_momentum():
+  world = jc.World.create([[0.0, 0.0], [1.05, 0.0]], [0.5, 0.5], [3.0, 1.0],
+                          vel=[[6.0, 0.0], [0.0, 0.0]])
+  final, _ = jc.rollout(world, jc.Config(gravity=(0.0, 0.0)), 10)
+  np.testing.assert_allclose(final.vel[:, 0], [4.5, 4.5], rtol=1e-5)  # 3*6 / (3+1)
+
+
+def test_player_pushing_a_row_into_a_wall_stops_and_nothing_enters_the_wall():
+  p = scenes.platformer()
+  world = p.scene.world()
+  config = jc.Config.for_world(world, friction=0.3)
+  controls = jnp.zeros((world.num_bodies, 2)).at[p.player, 0].set(20.0)
+  final, traj = jc.rollout(world, config, 420, controls)
+  right = np.asarray(traj.pos[:, p.row, 0]) + np.asarray(world.half[p.row, 0])
+  assert right.max() - p.wall_face < 1e-4  # Never inside the wall.
+  np.testing.assert_allclose(right[-1, -1], p.wall_face, atol=1e-4)  # Row pressed against it.
+  np.testing.assert_allclose(final.vel[p.row, 0], 0.0, atol=1e-4)
+  assert abs(float(final.vel[p.player, 0])) < 1e-3
+  assert float(jc.metrics.max_penetration(final)) < 1e-4
+
+
+def test_kinematic_platform_carries_a_box():
+  world = jc.World.create([[0.0, 0.0], [0.0, 1.0]], [[2.0, 0.5], [0.5, 0.5]], [INF, 1.0],
+                          vel=[[0.0, 1.0], [0.0, 0.0]])
+  final, _ = jc.rollout(world, jc.Config(), 60)
+  np.testing.assert_allclose(final.pos[0, 1], 1.0, rtol=1e-5)  # Moves only by its velocity.
+  np.testing.assert_allclose(final.pos[1, 1] - final.pos[0, 1], 1.0, atol=1e-4)  # Box rides on it.
+
+
+def test_rollout_matches_repeated_steps_and_make_step():
+  world = scenes.platformer().scene.world()
+  config = jc.Config.for_world(world, friction=0.3)
+  final, traj = jc.rollout(world, config, 5)
+  assert traj.pos.shape == (5, world.num_bodies, 2)
+  step_fn = jc.make_step(config)
+  w = world
+  for t in range(5):
+    w = jc.step(w, config)
+    np.testing.assert_allclose(traj.pos[t], w.pos, **TOL["transform"])
+  chex.assert_trees_all_close(final, w, **TOL["transform"])
+  chex.assert_trees_all_close(step_fn(world), jc.step(world, config), **TOL["transform"])
+
+
+def test_substeps_split_the_step():
+  world = jc.World.create([[0.0, 10.0]], [0.5, 0.5], 1.0)
+  coarse = jc.step(world, jc.Config(dt=1 / 30, substeps=2))
+  fine = jc.step(jc.step(world, jc.Config(dt=1 / 60)), jc.Config(dt=1 / 60))
+  chex.assert_trees_all_close(coarse, fine, **TOL["transform"])
+
+
+def test_step_jit_equals_eager_and_does_not_recompile():
+  world = scenes.platformer().scene.world()
+  config = jc.Config.for_world(world, friction=0.3)
+  jitted = jc.step(world, config)
+  size = jc.step._cache_size()
+  with jax.disable_jit():
+    eager = jc.step(world, config)
+  chex.assert_trees_all_close(jitted, eager, **TOL["transform"])
+  jc.step(dataclasses.replace(world, vel=world.vel + 1.0), config.replace())
+  assert jc.step._cache_size() == size
+
+
+def test_vmap_rollout_over_padded_batch():
+  worlds = [scenes.push_chain(n, wall=True).world() for n in (1, 3)]
+  config = jc.Config(friction=0.2, gravity=(0.0, 0.0), depth=4)
+  batch = jc.stack(worlds)
+  final, traj = jax.vmap(lambda w: jc.rollout(w, config, 8))(batch)
+  assert traj.pos.shape == (2, 8, batch.num_bodies, 2)
+  for b, w in enumerate(worlds):
+    n = w.num_bodies
+    np.testing.assert_allclose(final.pos[b, :n], jc.rollout(w, config, 8)[0].pos,
+                               **TOL["transform"])
+  np.testing.assert_array_equal(final.pos[0, 3:], batch.pos[0, 3:])
+
+
+def test_grad_through_rollout_is_finite_and_pushes_the_box():
+  # Player hits a box on a floor with friction: a faster player pushes the box further.
+  world = jc.World.create([[0.0, 0.5], [1.5, 0.5], [0.0, -0.5]],
+                          [[0.5, 0.5], [0.5, 0.5], [50.0, 0.5]], [1.0, 1.0, INF])
+  config = jc.Config(friction=0.3)
+
+  def box_x(speed):
+    w = dataclasses.replace(world, vel=world.vel.at[0, 0].set(speed))
+    return jc.rollout(w, config, 90)[0].pos[1, 0]
+
+  g = jax.grad(box_x)(4.0)
+  assert np.isfinite(g) and g > 0
+  eps = 1e-2
+  fd = (box_x(4.0 + eps) - box_x(4.0 - eps)) / (2 * eps)
+  np.testing.assert_allclose(g, fd, rtol=0.05)
+
+
+def test_rollout_controls_shape_is_checked():
+  world = box_on_floor()
+  with pytest.raises(ValueError, match="controls must have shape"):
+    jc.rollout(world, jc.Config(), 4, jnp.zeros((3, 2, 2)))
