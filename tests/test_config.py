@@ -69,3 +69,12 @@ def test_switched_off_features_are_not_traced(feature):
   assert (lean.has_gravity, lean.has_friction, lean.immovable, lean.substeps) == (
       False, False, False, 1)
   assert _jaxpr_lines(lean, world) < _jaxpr_lines(lean.replace(**feature), world)
+
+
+def test_lean_config_gives_the_same_answer_on_scenes_it_fits():
+  scene = scenes.push_chain(5, overlap=0.3, wall=False, overlaps=[0.1, 0.0, 0.2, 0.05])
+  world = scene.world()
+  lean = jc.Config.for_world(world, gravity=(0.0, 0.0))
+  assert lean.immovable is False
+  full = lean.replace(immovable=True, depth=8)
+  np.testing.assert_allclose(jc.resolve(world, lean).pos, jc.resolve(world, full).pos, atol=1e-6)
