@@ -22,14 +22,35 @@ class Candidates:
 
   Attributes:
     idx: `[n, m]` int32, `idx[i, k]` is the k-th candidate partner of body i.
-      Unused slots hold any valid index and are masked out.
+      Unused slots hold any valid index and are masked out. `None` means dense:
+      `m = n` and `idx[i, k] = k`, so gathers become broadcasts.
     mask: `[n, m]` bool, which slots are real candidate pairs. A pair (i, j) is
       listed in both rows i and j, so every pairwise quantity is computed from
       both sides and the resolver stays permutation-equivariant.
   """
 
-  idx: jax.Array
+  idx: jax.Array | None
   mask: jax.Array
+
+  def gather(self, x: jax.Array) -> jax.Array:
+    """Partner values of `x` with bodies on the last axis: `[..., n]` -> `[..., n, m]`."""
+    if self.idx is None:
+      return jnp.broadcast_to(x[..., None, :], x.shape[:-1] + (x.shape[-1], x.shape[-1]))
+    return x[..., self.idx]
+
+  def gather_bodies(self, x: jax.Array) -> jax.Array:
+    """Per-partner values of a per-body array `x` of shape `[n, *f]`: `[n, m, *f]`."""
+    if self.idx is None:
+      n = x.shape[0]
+      return jnp.broadcast_to(x[None], (n,) + x.shape)
+    return x[self.idx]
+
+  def partner_index(self) -> jax.Array:
+    """`[n, m]` int32 partner indices (materialised for dense)."""
+    if self.idx is None:
+      n = self.mask.shape[0]
+      return jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), (n, n))
+    return self.idx
 
 
 def dense(active: jax.Array) -> Candidates:
@@ -39,9 +60,8 @@ def dense(active: jax.Array) -> Candidates:
     active: `[n]` bool.
   """
   n = active.shape[0]
-  idx = jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), (n, n))
   mask = active[:, None] & active[None, :] & ~jnp.eye(n, dtype=bool)
-  return Candidates(idx=idx, mask=mask)
+  return Candidates(idx=None, mask=mask)
 
 
 def candidates(world, config: Config) -> Candidates:

@@ -70,7 +70,6 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
     `[n, 2]` displacement; exactly 0 for immovable bodies.
   """
   c = geometry.contacts(pos, half, cand, skin)
-  nbr = cand.idx
   dirs = jnp.arange(geometry.NUM_DIRECTIONS, dtype=c.direction.dtype)[:, None, None]
   front = c.link[None] & (c.direction[None] == dirs)  # [4, n, m]: j in front of i along d.
   back = front[_OPPOSITE]  # [4, n, m]: j behind i along d, i.e. j pushes i along d.
@@ -78,9 +77,9 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   # 2. Backing: unit mass (and immovable flag) in front of each body, K hops.
   def backing_hop(_, carry):
     unit_mass, leans = carry
-    unit_mass = mass[None] + jnp.sum(jnp.where(front, unit_mass[:, nbr], 0.0), axis=-1)
+    unit_mass = mass[None] + jnp.sum(jnp.where(front, cand.gather(unit_mass), 0.0), axis=-1)
     if track_immovable:
-      leans = immovable[None] | jnp.any(front & leans[:, nbr], axis=-1)
+      leans = immovable[None] | jnp.any(front & cand.gather(leans), axis=-1)
     return unit_mass, leans
 
   unit_mass = jnp.broadcast_to(mass, front.shape[:2])
@@ -93,6 +92,7 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   e = d ^ 1
   rows = jnp.arange(pos.shape[0])[:, None]
   mass_i, leans_i = unit_mass[e, rows], leans[e, rows]
+  nbr = cand.partner_index()
   mass_j, leans_j = unit_mass[d, nbr], leans[d, nbr]
   weight = safe_divide(mass_j, mass_i + mass_j, default=0.5)
   weight = jnp.where(leans_j, 1.0, weight)
@@ -103,7 +103,7 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   movable = ~immovable
 
   def push_hop(_, disp):
-    pushed = jnp.where(back, disp[:, nbr] + share[None], 0.0)
+    pushed = jnp.where(back, cand.gather(disp) + share[None], 0.0)
     return jnp.where(movable[None], jnp.max(pushed, axis=-1, initial=0.0), 0.0)
 
   disp = jnp.zeros(front.shape[:2], pos.dtype)

@@ -54,15 +54,15 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float) -> 
     skin: gap below which separated bodies still count as linked.
   """
   n = pos.shape[0]
-  pos_j, half_j = pos[cand.idx], half[cand.idx]
+  pos_j, half_j = cand.gather_bodies(pos), cand.gather_bodies(half)
   delta = pos_j - pos[:, None, :]
   o = overlap(pos[:, None, :], half[:, None, :], pos_j, half_j)
   use_y = o[..., 1] < o[..., 0]
   o_axis = jnp.where(use_y, o[..., 1], o[..., 0])
   o_other = jnp.where(use_y, o[..., 0], o[..., 1])
   d_axis = jnp.where(use_y, delta[..., 1], delta[..., 0])
-  self_idx = jnp.arange(n, dtype=cand.idx.dtype)[:, None]
-  positive = (d_axis > 0) | ((d_axis == 0) & (cand.idx > self_idx))
+  self_idx = jnp.arange(n, dtype=jnp.int32)[:, None]
+  positive = (d_axis > 0) | ((d_axis == 0) & (cand.partner_index() > self_idx))
   link = cand.mask & (o_other > 0) & (o_axis >= -skin)
   direction = 2 * use_y.astype(jnp.int32) + (~positive).astype(jnp.int32)
   depth = jnp.where(link, jnp.maximum(o_axis, 0.0), 0.0)

@@ -109,7 +109,7 @@ def _friction(world: World, pos, vel, push, config: Config, h: float) -> jax.Arr
   for tangent in (0, 1):  # A loop over the two axes, not over bodies.
     along_normal = c.link & (normal_is_y if tangent == 0 else ~normal_is_y)
     count = jnp.sum(along_normal, axis=-1)
-    ref = chain.safe_divide(jnp.sum(jnp.where(along_normal, vel[cand.idx, tangent], 0.0), -1),
+    ref = chain.safe_divide(jnp.sum(jnp.where(along_normal, cand.gather_bodies(vel[:, tangent]), 0.0), -1),
                             count.astype(vel.dtype))
     rel = vel[:, tangent] - ref
     budget = config.friction * jnp.abs(push[:, 1 - tangent]) / h
