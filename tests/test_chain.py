@@ -257,7 +257,26 @@ def test_grad_is_finite(name):
 
 
 def test_coincident_centres_separate_deterministically():
+  # All three at (1, 1), masses (1, 2, inf). Ties go to x and the larger index lies at +x,
+  # so body 2 (immovable) is in front of both others and body 1 in front of body 0: body 1
+  # backs off by 1 (its whole overlap with 2) and pushes body 0, which backs off by 1 more.
   world = pad_world(GRAD_SCENES["coincident"])
-  out = np.asarray(jc.resolve(world, dataclasses.replace(DEEP, iterations=4)).pos)[:3]
-  assert jc.metrics.max_penetration(jc.World.create(out, np.full((3, 2), 0.5), [1, 2, np.inf])) < 1e-5
-  np.testing.assert_array_equal(out[2], [1.0, 1.0])  # The immovable one stays.
+  for iterations in (1, 4):
+    out = np.asarray(jc.resolve(world, dataclasses.replace(DEEP, iterations=iterations)).pos)[:3]
+    np.testing.assert_allclose(out, [[-1.0, 1.0], [0.0, 1.0], [1.0, 1.0]], **TOL["exact_f32"])
+
+
+def test_a_body_pushed_by_two_bodies_moves_by_the_larger_push_not_the_sum():
+  # A box straddling two immovable floor tiles, sunk 0.1 into each: lifted by 0.1 (max-plus).
+  scene = scenes.Scene(np.array([[0.0, -0.5], [1.0, -0.5], [0.5, 0.4]]), np.full((3, 2), 0.5),
+                       np.array([np.inf, np.inf, 1.0]))
+  np.testing.assert_allclose(resolve_scene(scene)[2], [0.5, 0.5], **TOL["exact_f32"])
+  np.testing.assert_allclose(reference.resolve(*scene)[2], [0.5, 0.5], atol=1e-12)
+
+
+def test_immovable_bodies_never_move_even_with_immovable_tracking_off():
+  # Config(immovable=False) is only exact without immovable bodies, but must still never
+  # move one: the wall stays, the box and player split the overlap as if it were absent.
+  world = pad_world(scenes.push_chain(1, overlap=0.2, wall=True))
+  out = jc.resolve(world, jc.Config(depth=4, gravity=(0.0, 0.0), immovable=False))
+  np.testing.assert_array_equal(out.pos[2], world.pos[2])

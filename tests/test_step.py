@@ -101,6 +101,18 @@ def test_kinematic_platform_carries_a_box():
   np.testing.assert_allclose(final.pos[1, 1] - final.pos[0, 1], 1.0, atol=1e-4)  # Box rides on it.
 
 
+def test_friction_drags_a_box_along_with_a_sliding_platform():
+  # Platform moving at 1 along x: friction accelerates the box by mu*g per second until
+  # the box moves with it (friction acts on the velocity relative to the support).
+  world = jc.World.create([[0.0, 0.0], [0.0, 1.0]], [[50.0, 0.5], [0.5, 0.5]], [INF, 1.0],
+                          vel=[[1.0, 0.0], [0.0, 0.0]])
+  final, traj = jc.rollout(world, jc.Config(friction=0.5), 60)
+  np.testing.assert_allclose(traj.vel[0, 1, 0], 0.5 * G * DT, rtol=1e-4)  # One step of mu*g.
+  np.testing.assert_allclose(final.pos[0, 0], 1.0, rtol=1e-5)
+  np.testing.assert_allclose(final.vel[1, 0], 1.0, atol=1e-5)
+  np.testing.assert_allclose(final.pos[1, 1] - final.pos[0, 1], 1.0, atol=1e-4)
+
+
 def test_rollout_matches_repeated_steps_and_make_step():
   world = scenes.platformer().scene.world()
   config = jc.Config.for_world(world, friction=0.3)
