@@ -68,6 +68,10 @@ def test_pad_and_stack_errors():
     jc.stack([])
   with pytest.raises(ValueError, match="expected a single world"):
     jc.stack([a, a]).pad(4)
+  with pytest.raises(ValueError, match="capacity 1 is smaller than the 2 bodies of world 0"):
+    jc.stack([a], capacity=1)
+  with pytest.raises(ValueError, match="world 1 is not a single world"):
+    jc.stack([a, jc.stack([a, a])])
 
 
 def test_world_is_a_pytree():

@@ -115,8 +115,7 @@ class World:
       raise ValueError(f"pad: capacity {capacity} is smaller than the {n} bodies in the world")
     extra = capacity - n
     cat = lambda x, fill: jnp.concatenate([x, jnp.full((extra,) + x.shape[1:], fill, x.dtype)])
-    return World(pos=cat(self.pos, 0), vel=cat(self.vel, 0), half=cat(self.half, 1),
-                 inv_mass=cat(self.inv_mass, 0), active=cat(self.active, False))
+    return World(**{f: cat(getattr(self, f), fill) for f, fill in _PAD_FILL.items()})
 
 
 def stack(worlds: Sequence[World], capacity: int | None = None) -> World:
@@ -139,9 +138,26 @@ def stack(worlds: Sequence[World], capacity: int | None = None) -> World:
   """
   if not worlds:
     raise ValueError("stack: need at least one world")
+  for k, w in enumerate(worlds):
+    if w.pos.ndim != 2:
+      raise ValueError(f"stack: world {k} is not a single world (pos {w.pos.shape})")
   capacity = max(w.num_bodies for w in worlds) if capacity is None else capacity
-  padded = [w.pad(capacity) for w in worlds]
-  return jax.tree.map(lambda *xs: jnp.stack(xs), *padded)
+  # Pad on the host and transfer once: per-world device ops cost seconds for 1000 worlds.
+  host = [jax.tree.map(np.asarray, w) for w in worlds]
+  out = {}
+  for field, fill in _PAD_FILL.items():
+    arrays = [getattr(w, field) for w in host]
+    batch = np.full((len(arrays), capacity) + arrays[0].shape[1:], fill, arrays[0].dtype)
+    for b, x in enumerate(arrays):
+      if len(x) > capacity:
+        raise ValueError(f"stack: capacity {capacity} is smaller than the {len(x)} bodies of world {b}")
+      batch[b, : len(x)] = x
+    out[field] = jnp.asarray(batch)
+  return World(**out)
+
+
+# Padding slots: immovable, inactive unit boxes at the origin.
+_PAD_FILL = dict(pos=0.0, vel=0.0, half=1.0, inv_mass=0.0, active=False)
 
 
 def _as_float(name: str, x) -> np.ndarray:
