@@ -1,13 +1,14 @@
 """jaxchain: batched, differentiable 2D box collisions with collision chaining."""
 
-from jaxchain import metrics, reference, scenes
+from jaxchain import broadphase, metrics, reference, scenes, status
 from jaxchain.broadphase import Candidates
-from jaxchain.config import Config
+from jaxchain.config import Config, GridSpec
+from jaxchain.status import check
 from jaxchain.step import Trajectory, make_step, resolve, rollout, step
 from jaxchain.world import World, stack
 
 __all__ = [
-    "Candidates", "Config", "Trajectory", "World", "make_step", "metrics", "reference", "resolve",
-    "rollout", "scenes", "stack", "step",
+    "Candidates", "Config", "GridSpec", "Trajectory", "World", "broadphase", "check", "make_step",
+    "metrics", "reference", "resolve", "rollout", "scenes", "stack", "status", "step",
 ]
 __version__ = "0.1.0"

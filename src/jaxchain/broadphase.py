@@ -12,7 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxchain.config import DENSE_MAX_BODIES, Config
+from jaxchain import status
+from jaxchain.config import DENSE_MAX_BODIES, Config, GridSpec
 
 
 @jax.tree_util.register_dataclass
@@ -64,17 +65,189 @@ def dense(active: jax.Array) -> Candidates:
   return Candidates(idx=None, mask=mask)
 
 
-def candidates(world, config: Config) -> Candidates:
-  """The candidate table the config asks for (traced; shapes fixed by `n`)."""
-  del config  # Only dense pairs exist so far; "grid" and "auto" fall back to them.
-  return dense(world.active)
+def grid(pos: jax.Array, half: jax.Array, active: jax.Array, movable: jax.Array,
+         spec: GridSpec, skin: float) -> tuple[Candidates, jax.Array]:
+  """Uniform-grid candidates: O(n) pairs with fixed capacity, overflow reported.
+
+  Movable bodies are entered in the cell of their centre; each gets as candidates
+  the movable bodies of its 3x3 cell neighbourhood. Immovable bodies (walls,
+  floors, kinematic platforms) of any size are entered in every cell from which a
+  movable body could touch them (their box grown by `reach + skin`), in a table of
+  their own, and each movable body also gets the immovable bodies of its own cell.
+  A 100-unit floor beside unit boxes therefore costs about 100 table entries, not a
+  100-unit cell. Immovable bodies get empty rows: the resolver never needs them
+  (an immovable body's flag decides every contact it is in, and it never moves).
+
+  Nothing is dropped silently: a full cell, a full static table or a movable body
+  larger than `spec.reach` sets a bit of the returned status.
+
+  Args:
+    pos, half: `[n, 2]`.
+    active, movable: `[n]` bool.
+    spec: static grid layout.
+    skin: link tolerance (contacts up to this gap must be found).
+
+  Returns:
+    `(candidates, status)`: an `[n, spec.row_size]` table and int32 status bits.
+  """
+  n = pos.shape[0]
+  nx, ny = spec.shape
+  n_cells = spec.num_cells
+  origin = jnp.asarray(spec.origin, pos.dtype)[None]
+  insert = active & movable
+
+  def cell_of(p):  # Clamped integer cell coordinates.
+    c = jnp.floor((p - origin) / spec.cell)
+    c = jnp.clip(c, 0, jnp.asarray([nx - 1, ny - 1], pos.dtype)[None])
+    return c.astype(jnp.int32)
+
+  own = cell_of(pos)
+  own_id = own[:, 0] + nx * own[:, 1]
+  movable_table, cell_full = _fill(jnp.where(insert, own_id, n_cells), jnp.arange(n, dtype=jnp.int32),
+                                   n_cells, spec.cell_capacity, n)
+
+  off = jnp.asarray(_NEIGHBOURS)  # [9, 2]
+  near = own[:, None, :] + off[None]  # [n, 9, 2]
+  inside = jnp.all((near >= 0) & (near < jnp.asarray([nx, ny])[None, None]), axis=-1)
+  near_id = jnp.where(inside, near[..., 0] + nx * near[..., 1], n_cells)
+  movable_idx = movable_table[near_id].reshape(n, 9 * spec.cell_capacity)
+
+  # Immovable bodies: one entry per covered cell, laid out by a prefix sum.
+  grow = spec.reach + skin
+  lo, hi = cell_of(pos - half - grow), cell_of(pos + half + grow)
+  width = hi - lo + 1  # [n, 2]
+  count = jnp.where(active & ~movable, width[:, 0] * width[:, 1], 0)
+  end = jnp.cumsum(count)
+  start = end - count
+  e = jnp.arange(spec.static_entries, dtype=end.dtype)
+  body = jnp.minimum(jnp.searchsorted(end, e, side="right"), n - 1).astype(jnp.int32)
+  local = e - start[body]
+  ex = lo[body, 0] + local % width[body, 0]
+  ey = lo[body, 1] + local // width[body, 0]
+  entry_id = jnp.where(e < end[-1], ex + nx * ey, n_cells)
+  static_table, static_full = _fill(entry_id, body, n_cells, spec.static_capacity, n)
+  static_idx = static_table[own_id]  # [n, static_capacity]
+
+  idx = jnp.concatenate([movable_idx, static_idx], axis=1)
+  real = idx < n
+  mask = real & (idx != jnp.arange(n, dtype=jnp.int32)[:, None]) & insert[:, None]
+  too_large = jnp.any(insert & (jnp.max(half, axis=-1) > spec.reach))
+  code = (jnp.where(cell_full, status.CELL_OVERFLOW, 0)
+          | jnp.where(static_full | (end[-1] > spec.static_entries), status.STATIC_OVERFLOW, 0)
+          | jnp.where(too_large, status.BODY_TOO_LARGE, 0)).astype(jnp.int32)
+  return Candidates(idx=jnp.where(real, idx, 0), mask=mask), code
+
+
+# The 3x3 neighbourhood of a cell, as (dx, dy) offsets.
+_NEIGHBOURS = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], np.int32)
+
+
+def _fill(cell_id: jax.Array, value: jax.Array, n_cells: int, capacity: int,
+          sentinel: int) -> tuple[jax.Array, jax.Array]:
+  """Scatters `value[k]` into row `cell_id[k]` of a `[n_cells + 1, capacity]` table.
+
+  Entries are sorted by cell (stably, so the layout is deterministic) and each
+  takes the next free slot of its row. `cell_id == n_cells` means "not entered";
+  the last row stays all `sentinel` and serves out-of-grid lookups.
+
+  Returns:
+    `(table, overflow)`, overflow true when some cell had more than `capacity`.
+  """
+  order = jnp.argsort(cell_id, stable=True)
+  sorted_id = cell_id[order]
+  rank = jnp.arange(cell_id.shape[0], dtype=jnp.int32) - jnp.searchsorted(
+      sorted_id, sorted_id, side="left").astype(jnp.int32)
+  entered = sorted_id < n_cells
+  keep = entered & (rank < capacity)
+  table = jnp.full((n_cells + 1, capacity), sentinel, jnp.int32)
+  table = table.at[jnp.where(keep, sorted_id, n_cells + 1), jnp.minimum(rank, capacity - 1)].set(
+      value[order], mode="drop")
+  return table, jnp.any(entered & (rank >= capacity))
+
+
+def candidates(pos: jax.Array, world, config: Config) -> tuple[Candidates, jax.Array]:
+  """The candidate table the config asks for, at positions `pos` (traced).
+
+  Returns:
+    `(candidates, status)`; status is int32 bits, 0 for dense pairs.
+  """
+  if config.uses_grid(world.num_bodies):
+    return grid(pos, world.half, world.active, world.movable, config.grid, config.skin)
+  return dense(world.active), jnp.zeros((), jnp.int32)
+
+
+def allocate(world, skin: float = 1e-4, *, headroom: float = 2.0, max_cells: int | None = None
+             ) -> GridSpec:
+  """Measures a world (or a padded batch) on the host and sizes a grid for it.
+
+  The cell is `2 * reach + skin` with `reach` the largest movable half-extent,
+  enlarged when needed so the grid has at most `max_cells` cells (default `8 n`,
+  at least 64) over the bodies' bounding box plus a two-cell margin. Capacities are
+  the measured maxima times `headroom` (bodies move; the grid does not).
+
+  Typical use, with the re-allocation a long run needs when status bits appear:
+
+      cfg = jc.Config.for_world(world)            # calls allocate for large worlds
+      world = jc.step(world, cfg)
+      if jc.check(world):                          # e.g. a cell overflowed
+        cfg = jc.Config.for_world(world)           # re-measure the current state
+        world = world.replace(status=jnp.zeros_like(world.status))
+
+  Args:
+    world: a `World`, single or batched.
+    skin: the config's skin.
+    headroom: factor on every measured capacity.
+    max_cells: cap on `nx * ny`.
+
+  Returns:
+    A `GridSpec`.
+  """
+  pos = np.asarray(world.pos, np.float64).reshape(-1, world.num_bodies, 2)
+  half = np.asarray(world.half, np.float64).reshape(pos.shape)
+  active = np.asarray(world.active).reshape(pos.shape[:2])
+  movable = active & (np.asarray(world.inv_mass).reshape(pos.shape[:2]) > 0)
+  n = pos.shape[1]
+  reach = float(np.max(np.where(movable[..., None], half, 0.0), initial=0.0)) or 0.5
+  cell = 2 * reach + skin
+  if active.any():
+    lo = np.min(np.where(active[..., None], pos - half, np.inf), axis=(0, 1))
+    hi = np.max(np.where(active[..., None], pos + half, -np.inf), axis=(0, 1))
+  else:
+    lo, hi = np.zeros(2), np.ones(2)
+  max_cells = max(64, 8 * n) if max_cells is None else max_cells
+
+  def shape_for(c):
+    return np.maximum(np.ceil((hi - lo) / c).astype(int) + 4, 1)
+
+  shape = shape_for(cell)
+  if shape.prod() > max_cells:
+    cell *= float(np.sqrt(shape.prod() / max_cells)) * 1.01
+    shape = shape_for(cell)
+    while shape.prod() > max_cells:
+      cell *= 1.05
+      shape = shape_for(cell)
+  origin = lo - 2 * cell
+  # Measured occupancy per world: movable per cell, immovable entries per cell and in all.
+  cells = np.clip(np.floor((pos - origin) / cell), 0, shape - 1).astype(int)
+  cell_max, static_max, entries_max = 1, 1, 1
+  grow = reach + skin
+  for b in range(pos.shape[0]):  # Host-side loop over worlds, eager sizing only.
+    ids = cells[b, movable[b], 0] + shape[0] * cells[b, movable[b], 1]
+    cell_max = max(cell_max, int(np.bincount(ids, minlength=1).max(initial=0)))
+    fixed = active[b] & ~movable[b]
+    c_lo = np.clip(np.floor((pos[b, fixed] - half[b, fixed] - grow - origin) / cell), 0, shape - 1)
+    c_hi = np.clip(np.floor((pos[b, fixed] + half[b, fixed] + grow - origin) / cell), 0, shape - 1)
+    per_cell = np.zeros(shape[::-1], int)
+    for (x0, y0), (x1, y1) in zip(c_lo.astype(int), c_hi.astype(int)):
+      per_cell[y0 : y1 + 1, x0 : x1 + 1] += 1
+    static_max = max(static_max, int(per_cell.max(initial=0)))
+    entries_max = max(entries_max, int(per_cell.sum()))
+  return GridSpec(origin=tuple(origin), cell=cell, shape=tuple(int(s) for s in shape), reach=reach,
+                  cell_capacity=max(2, int(np.ceil(cell_max * headroom))),
+                  static_capacity=max(2, int(np.ceil(static_max * headroom))),
+                  static_entries=max(16, int(np.ceil(entries_max * headroom))))
 
 
 def choose(num_bodies: int) -> str:
-  """The broadphase "auto" resolves to for worlds of `num_bodies` bodies."""
+  """The broadphase `for_world` picks for worlds of `num_bodies` bodies."""
   return "dense" if num_bodies <= DENSE_MAX_BODIES else "grid"
-
-
-def pair_count(num_bodies: int) -> int:
-  """Number of candidate slots per world, `n * m`, for sizing estimates."""
-  return int(np.int64(num_bodies) * num_bodies)

@@ -14,6 +14,60 @@ DENSE_MAX_BODIES = 1024
 
 
 @dataclasses.dataclass(frozen=True)
+class GridSpec:
+  """Static layout of the uniform grid broadphase (see `jaxchain.broadphase`).
+
+  Attributes:
+    origin: `(x0, y0)` lower-left corner of cell `(0, 0)`.
+    cell: cell side; at least `2 * reach + skin`, so movable bodies that touch sit
+      in neighbouring cells.
+    shape: `(nx, ny)` cells. Bodies outside are clamped into the border cells:
+      still correct, only more crowded.
+    reach: the largest half-extent of a movable body the grid is built for; a larger
+      one sets `status.BODY_TOO_LARGE`.
+    cell_capacity: movable bodies per cell; more sets `status.CELL_OVERFLOW`.
+    static_capacity: immovable bodies per cell (each is entered in every cell it
+      can touch a movable body from).
+    static_entries: total (immovable body, cell) entries per world; more, or more
+      than `static_capacity` in a cell, sets `status.STATIC_OVERFLOW`.
+  """
+
+  origin: tuple[float, float]
+  cell: float
+  shape: tuple[int, int]
+  reach: float
+  cell_capacity: int = 4
+  static_capacity: int = 8
+  static_entries: int = 64
+
+  def __post_init__(self):
+    object.__setattr__(self, "origin", tuple(float(x) for x in self.origin))
+    object.__setattr__(self, "shape", tuple(int(x) for x in self.shape))
+    for name in ("cell", "reach"):
+      object.__setattr__(self, name, float(getattr(self, name)))
+    if len(self.origin) != 2 or len(self.shape) != 2 or min(self.shape) < 1:
+      raise ValueError(f"GridSpec: origin and shape need two entries, shape >= 1; got {self}")
+    if not self.cell > 0 or not self.reach >= 0:
+      raise ValueError(f"GridSpec: cell must be > 0 and reach >= 0; got {self}")
+    if self.cell < 2 * self.reach:
+      raise ValueError(f"GridSpec: cell {self.cell} is smaller than 2 * reach {self.reach}")
+    for name in ("cell_capacity", "static_capacity", "static_entries"):
+      v = getattr(self, name)
+      if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+        raise ValueError(f"GridSpec.{name}: expected an integer >= 1, got {v!r}")
+      object.__setattr__(self, name, int(v))
+
+  @property
+  def num_cells(self) -> int:
+    return self.shape[0] * self.shape[1]
+
+  @property
+  def row_size(self) -> int:
+    """Candidate slots per body: the 3x3 movable neighbourhood plus own-cell statics."""
+    return 9 * self.cell_capacity + self.static_capacity
+
+
+@dataclasses.dataclass(frozen=True)
 class Config:
   """Everything that shapes the compiled step. Frozen and hashable: pass it as a
   static argument; two equal configs share one compiled function.
@@ -26,14 +80,16 @@ class Config:
       L boxes is resolved exactly in one pass when `depth >= L`.
     iterations: resolution passes per (sub)step.
     friction: Coulomb coefficient mu shared by all contacts (0 switches it off).
-    broadphase: `"dense"` (all pairs), `"grid"` or `"auto"` (dense below
-      `DENSE_MAX_BODIES`; until the grid lands, "grid" also uses dense pairs).
+    broadphase: `"dense"` (all pairs, O(n^2)), `"grid"` (uniform grid, O(n); needs
+      `grid`) or `"auto"` (grid when `grid` is set and the world has more than
+      `DENSE_MAX_BODIES` bodies, else dense).
     substeps: sub-steps of `dt / substeps` per step.
     skin: bodies closer than this along the contact axis are chain links: a push
       travels through a row of touching boxes in the same pass.
     immovable: whether the scene may hold immovable bodies (inverse mass 0). With
       `False` the "leans on something immovable" flag is not traced at all; only
       set it when no active body has infinite mass.
+    grid: the grid layout (`GridSpec`), from `broadphase.allocate` or `for_world`.
   """
 
   dt: float = 1 / 60
@@ -45,6 +101,7 @@ class Config:
   substeps: int = 1
   skin: float = 1e-4
   immovable: bool = True
+  grid: GridSpec | None = None
 
   def __post_init__(self):
     g = tuple(float(x) for x in np.asarray(self.gravity, dtype=float).reshape(-1))
@@ -71,6 +128,17 @@ class Config:
       raise ValueError(f"Config.broadphase: expected one of {BROADPHASES}, got {self.broadphase!r}")
     if not isinstance(self.immovable, bool):
       raise ValueError(f"Config.immovable: expected a bool, got {self.immovable!r}")
+    if self.grid is not None and not isinstance(self.grid, GridSpec):
+      raise ValueError(f"Config.grid: expected a GridSpec or None, got {type(self.grid).__name__}")
+    if self.broadphase == "grid" and self.grid is None:
+      raise ValueError("Config.broadphase: 'grid' needs Config.grid (a GridSpec); build one "
+                       "with jaxchain.broadphase.allocate(world) or use Config.for_world")
+
+  def uses_grid(self, num_bodies: int) -> bool:
+    """Whether a world of `num_bodies` slots is resolved with the grid."""
+    if self.broadphase == "auto":
+      return self.grid is not None and num_bodies > DENSE_MAX_BODIES
+    return self.broadphase == "grid"
 
   @property
   def has_gravity(self) -> bool:

@@ -40,15 +40,23 @@ def _check_single(world: World, fn: str) -> None:
         f"for a batch use jax.vmap({fn}, in_axes=(0, None)) or functools.partial(jc.{fn}, config=cfg)")
 
 
-def _resolve_positions(world: World, pos: jax.Array, config: Config) -> jax.Array:
-  """Positions after `config.iterations` chain passes over one candidate table."""
-  cand = broadphase.candidates(world, config)
+def _resolve_positions(world: World, pos: jax.Array, config: Config) -> tuple[jax.Array, jax.Array]:
+  """Positions after `config.iterations` chain passes, and the status bits they raised.
+
+  Dense candidates are built once; grid candidates are rebuilt at the start of every
+  pass, from the positions that pass starts at.
+  """
   mass = chain.body_mass(world.inv_mass, world.active)
   immovable = ~world.movable
-  pass_fn = functools.partial(
-      chain.displacement, half=world.half, mass=mass, immovable=immovable, cand=cand,
-      depth=config.depth, skin=config.skin, track_immovable=config.immovable)
-  return lax.fori_loop(0, config.iterations, lambda _, p: p + pass_fn(p), pos)
+
+  def one_pass(_, carry):
+    p, code = carry
+    cand, found = broadphase.candidates(p, world, config)
+    p = p + chain.displacement(p, world.half, mass, immovable, cand, depth=config.depth,
+                               skin=config.skin, track_immovable=config.immovable)
+    return p, code | found
+
+  return lax.fori_loop(0, config.iterations, one_pass, (pos, jnp.zeros((), jnp.int32)))
 
 
 @functools.partial(jax.jit, static_argnames="config")
@@ -70,7 +78,8 @@ def resolve(world: World, config: Config) -> World:
     [-0.1, 0.9, 1.9]
   """
   _check_single(world, "resolve")
-  return dataclasses.replace(world, pos=_resolve_positions(world, world.pos, config))
+  pos, code = _resolve_positions(world, world.pos, config)
+  return world.replace(pos=pos, status=world.status | code)
 
 
 def _substep(world: World, config: Config, h: float, accel: jax.Array | None) -> World:
@@ -81,7 +90,7 @@ def _substep(world: World, config: Config, h: float, accel: jax.Array | None) ->
   if config.has_gravity:
     vel = vel + jnp.where(movable, jnp.asarray(config.gravity, vel.dtype)[None] * h, 0.0)
   predicted = world.pos + jnp.where(world.active[:, None], vel * h, 0.0)
-  resolved = _resolve_positions(world, predicted, config)
+  resolved, code = _resolve_positions(world, predicted, config)
   push = resolved - predicted
   # Position-based velocity update, perfectly inelastic: a body stopped by a contact
   # loses its velocity into it, a pushed body moves on with its pusher, and no
@@ -90,7 +99,7 @@ def _substep(world: World, config: Config, h: float, accel: jax.Array | None) ->
   vel = jnp.where(vel * moved < 0, 0.0, moved)
   if config.has_friction:
     vel = _friction(world, resolved, vel, push, config, h)
-  return dataclasses.replace(world, pos=resolved, vel=vel)
+  return world.replace(pos=resolved, vel=vel, status=world.status | code)
 
 
 def _friction(world: World, pos, vel, push, config: Config, h: float) -> jax.Array:
@@ -102,7 +111,7 @@ def _friction(world: World, pos, vel, push, config: Config, h: float) -> jax.Arr
   bodies it is linked to along the normal axis, by at most `mu` times that. A box
   sliding at `v0` on a floor stops after about `v0**2 / (2 mu g)`.
   """
-  cand = broadphase.candidates(world, config)
+  cand, _ = broadphase.candidates(pos, world, config)  # Status already taken by the resolution.
   c = geometry.contacts(pos, world.half, cand, config.skin)
   normal_is_y = c.direction >= 2  # [n, m]
   out = []

@@ -22,6 +22,8 @@ class World:
     inv_mass: `[n]` float array, `1 / mass`; `0` marks an immovable body (a wall,
       or a kinematic platform that moves only by its own velocity).
     active: `[n]` bool array; padding slots are `False` and never collide or move.
+    status: `[]` int32, failure bits (`jaxchain.status`) ORed in by every step and
+      kept until the user clears them; `jc.check(world)` explains them.
   """
 
   pos: jax.Array
@@ -29,6 +31,7 @@ class World:
   half: jax.Array
   inv_mass: jax.Array
   active: jax.Array
+  status: jax.Array
 
   @property
   def num_bodies(self) -> int:
@@ -100,7 +103,11 @@ class World:
     dtype = jnp.asarray(0.0).dtype
     f = lambda x: jnp.asarray(x, dtype)
     return cls(pos=f(pos), vel=f(vel), half=f(half), inv_mass=f(inv_mass),
-               active=jnp.asarray(active))
+               active=jnp.asarray(active), status=jnp.zeros((), jnp.int32))
+
+  def replace(self, **changes) -> World:
+    """A copy with some fields changed (no validation: for traced code)."""
+    return dataclasses.replace(self, **changes)
 
   def pad(self, capacity: int) -> World:
     """Pads a single world with inactive slots up to `capacity` bodies.
@@ -115,7 +122,8 @@ class World:
       raise ValueError(f"pad: capacity {capacity} is smaller than the {n} bodies in the world")
     extra = capacity - n
     cat = lambda x, fill: jnp.concatenate([x, jnp.full((extra,) + x.shape[1:], fill, x.dtype)])
-    return World(**{f: cat(getattr(self, f), fill) for f, fill in _PAD_FILL.items()})
+    return World(**{f: cat(getattr(self, f), fill) for f, fill in _PAD_FILL.items()},
+                 status=self.status)
 
 
 def stack(worlds: Sequence[World], capacity: int | None = None) -> World:
@@ -153,7 +161,8 @@ def stack(worlds: Sequence[World], capacity: int | None = None) -> World:
         raise ValueError(f"stack: capacity {capacity} is smaller than the {len(x)} bodies of world {b}")
       batch[b, : len(x)] = x
     out[field] = jnp.asarray(batch)
-  return World(**out)
+  status = np.stack([np.asarray(w.status, np.int32) for w in host])
+  return World(**out, status=jnp.asarray(status))
 
 
 # Padding slots: immovable, inactive unit boxes at the origin.

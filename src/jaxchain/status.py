@@ -1,0 +1,53 @@
+"""Failures as values: per-world status bits, sticky across steps.
+
+A step never raises under `jit`; it ORs bits into `World.status` (an int32 per
+world, so under `vmap` one bad world does not take down the batch). `check`
+turns them into readable messages on the host.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+OK = 0
+CELL_OVERFLOW = 1 << 0
+STATIC_OVERFLOW = 1 << 1
+BODY_TOO_LARGE = 1 << 2
+
+MESSAGES = {
+    CELL_OVERFLOW: "a grid cell held more movable bodies than Config.grid.cell_capacity; "
+                   "contacts were missed (re-run Config.for_world on the current world, or "
+                   "raise cell_capacity)",
+    STATIC_OVERFLOW: "the grid's table of immovable bodies overflowed (static_capacity per cell "
+                     "or static_entries in all); contacts with walls were missed (re-run "
+                     "Config.for_world, or raise those capacities)",
+    BODY_TOO_LARGE: "a movable body is larger than Config.grid.reach allows; its contacts may "
+                    "be missed (re-run Config.for_world on this world)",
+}
+
+
+def check(world) -> list[str]:
+  """Readable messages for every status bit set, one per (world, problem).
+
+  Args:
+    world: a `World`, single or batched (status of shape `[]` or `[b]`).
+
+  Returns:
+    An empty list when every world is fine, else lines like
+    `"world 3: a grid cell held more movable bodies ..."`.
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> jc.check(jc.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0))
+    []
+  """
+  codes = np.atleast_1d(np.asarray(world.status))
+  out = []
+  for b, code in enumerate(codes):
+    for bit, text in MESSAGES.items():
+      if code & bit:
+        out.append(f"world {b}: {text}")
+    unknown = int(code) & ~sum(MESSAGES)
+    if unknown:
+      out.append(f"world {b}: unknown status bits {unknown:#x}")
+  return out
