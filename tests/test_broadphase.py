@@ -169,3 +169,16 @@ def test_config_rejects_grid_without_spec():
     jc.Config(broadphase="grid")
   with pytest.raises(ValueError, match="GridSpec.cell_capacity"):
     jc.GridSpec(origin=(0, 0), cell=1.0, shape=(2, 2), reach=0.5, cell_capacity=0)
+
+
+def test_for_world_picks_the_broadphase_by_size_and_crowding():
+  rng = np.random.default_rng(0)
+  small = scenes.box_room(rng, 100).world()
+  assert jc.Config.for_world(small).broadphase == "dense"
+  large = scenes.box_room(rng, 600).world()
+  cfg = jc.Config.for_world(large)
+  assert cfg.broadphase == "grid" and cfg.grid.row_size < 100
+  assert jc.Config.for_world(large, broadphase="dense").grid is None  # Overrides win.
+  pile = jc.World.create(rng.uniform(0, 2, (600, 2)), [0.1, 0.1], 1.0)  # 600 boxes, 2 x 2 area.
+  assert jc.Config.for_world(pile).broadphase == "dense"  # Too crowded for cells to help.
+  assert jc.Config.for_world(pile, broadphase="grid").broadphase == "grid"

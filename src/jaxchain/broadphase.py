@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxchain import status
-from jaxchain.config import DENSE_MAX_BODIES, Config, GridSpec
+from jaxchain.config import Config, GridSpec
 
 
 @jax.tree_util.register_dataclass
@@ -247,7 +247,3 @@ def allocate(world, skin: float = 1e-4, *, headroom: float = 2.0, max_cells: int
                   static_capacity=max(2, int(np.ceil(static_max * headroom))),
                   static_entries=max(16, int(np.ceil(entries_max * headroom))))
 
-
-def choose(num_bodies: int) -> str:
-  """The broadphase `for_world` picks for worlds of `num_bodies` bodies."""
-  return "dense" if num_bodies <= DENSE_MAX_BODIES else "grid"

@@ -9,8 +9,10 @@ import numpy as np
 
 BROADPHASES = ("auto", "dense", "grid")
 
-# Below this many bodies per world, dense all-pairs candidates are used by "auto".
-DENSE_MAX_BODIES = 1024
+# Worlds with at most this many body slots use dense all-pairs candidates in
+# `for_world` and "auto". Measured (benchmarks/results/scaling.md): one world, the
+# grid is faster from N=256; batches of 16 worlds, from N=512 (equal at 256).
+DENSE_MAX_BODIES = 256
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,8 +162,11 @@ class Config:
     immovable-body handling when no active body is immovable, and chain depth
     beyond the number of movable bodies (no chain can be longer). Gravity and
     friction are whatever the overrides say (gravity defaults on, friction off);
-    with zero gravity or friction their code is not traced. `broadphase="auto"`
-    picks dense pairs for small worlds. Explicit `overrides` always win.
+    with zero gravity or friction their code is not traced. The broadphase is
+    dense pairs up to `DENSE_MAX_BODIES` body slots, else the grid, sized by
+    `broadphase.allocate` from this world, unless the scene is so crowded that a
+    grid row would hold over a quarter of the bodies (then dense is cheaper).
+    Explicit `overrides` always win.
 
     Examples:
       >>> import jaxchain as jc
@@ -174,7 +179,18 @@ class Config:
     inv_mass = np.asarray(world.inv_mass)
     n_movable = int(np.max(np.sum(active & (inv_mass > 0), axis=-1), initial=0))
     has_immovable = bool(np.any(active & (inv_mass == 0)))
-    base = cls(**{k: v for k, v in overrides.items() if k not in ("depth", "immovable")})
+    derived_keys = ("depth", "immovable", "broadphase", "grid")
+    base = cls(**{k: v for k, v in overrides.items() if k not in derived_keys})
     derived = dict(depth=min(cls.depth, max(n_movable, 1)), immovable=has_immovable)
-    derived.update({k: v for k, v in overrides.items() if k in derived})
+    broadphase = overrides.get("broadphase", "auto")
+    if broadphase in ("auto", "grid") and "grid" not in overrides:
+      from jaxchain import broadphase as bp  # Import here: broadphase imports config.
+      n = int(world.pos.shape[-2])
+      if broadphase == "grid" or n > DENSE_MAX_BODIES:
+        spec = bp.allocate(world, base.skin)
+        crowded = spec.row_size > n / 4
+        derived.update(grid=spec, broadphase="dense" if crowded and broadphase == "auto" else "grid")
+      else:
+        derived.update(broadphase="dense")
+    derived.update({k: v for k, v in overrides.items() if k in derived_keys})
     return base.replace(**derived)

@@ -146,3 +146,30 @@ def platformer(rng: np.random.Generator | None = None, row_length: int = 4,
     add([-8.5, 0.5 + k], [0.5, 0.5], draw())  # behind the player
   scene = Scene(np.asarray(pos, float), np.asarray(half, float), np.asarray(mass, float))
   return Platformer(scene, player, np.asarray(row), wall, 10.0)
+
+
+def box_room(rng: np.random.Generator, n: int, density: float = 0.35) -> Scene:
+  """A closed room (floor, ceiling, two walls) holding `n - 4` movable boxes at
+  constant density: the room's area grows with `n`, so the work per body does
+  not. Boxes (half-extents 0.2 to 0.45) sit on a jittered lattice, some touching.
+
+  Args:
+    rng: random generator.
+    n: total bodies, at least 5.
+    density: fraction of lattice sites holding a box.
+  """
+  if n < 5:
+    raise ValueError(f"box_room: need at least 5 bodies, got {n}")
+  boxes = n - 4
+  side = int(np.ceil(np.sqrt(boxes / density)))
+  sites = rng.choice(side * side, boxes, replace=False)
+  centre = np.stack([sites % side, sites // side], -1) + 0.5
+  half = rng.uniform(0.2, 0.45, (boxes, 2))
+  centre = centre + rng.uniform(-1, 1, (boxes, 2)) * (0.5 - half)
+  w = float(side)
+  walls_pos = [[w / 2, -0.5], [w / 2, w + 0.5], [-0.5, w / 2], [w + 0.5, w / 2]]
+  walls_half = [[w / 2 + 1, 0.5], [w / 2 + 1, 0.5], [0.5, w / 2], [0.5, w / 2]]
+  pos = np.concatenate([np.asarray(walls_pos), centre])
+  half = np.concatenate([np.asarray(walls_half), half])
+  mass = np.r_[np.full(4, INF), rng.uniform(0.5, 2.0, boxes)]
+  return Scene(pos, half, mass)

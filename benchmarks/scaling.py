@@ -1,0 +1,126 @@
+"""Grid against dense broadphase: time per step and per body over bodies per world.
+
+Scene: `jaxchain.scenes.box_room`, boxes at constant density in a closed room
+(long floor, ceiling and walls), gravity and friction on. Each setting times a
+jitted, vmapped 10-step rollout (compile excluded, median of repeats) for one
+world (B=1) and for a batch of worlds. Writes `results/scaling.md` and
+`results/scaling.png`.
+
+    python benchmarks/scaling.py            # full sweep, about 5 minutes on 2 cores
+    python benchmarks/scaling.py --quick    # smaller sweep
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import statistics
+import time
+
+import jax
+import numpy as np
+from tqdm import tqdm
+
+import jaxchain as jc
+from jaxchain import broadphase, scenes
+
+RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+STEPS = 10
+
+
+def time_setting(n: int, batch: int, kind: str, repeats: int) -> dict:
+  rng = np.random.default_rng(n)
+  worlds = jc.stack([scenes.box_room(rng, n).world() for _ in range(batch)])
+  base = jc.Config(friction=0.3, depth=4)
+  if kind == "grid":
+    cfg = base.replace(broadphase="grid", grid=broadphase.allocate(worlds))
+  else:
+    cfg = base.replace(broadphase="dense")
+  run = jax.jit(jax.vmap(lambda w: jc.rollout(w, cfg, STEPS)[0]))
+  t0 = time.perf_counter()
+  compiled = run.lower(worlds).compile()
+  compile_s = time.perf_counter() - t0
+  out = compiled(worlds)
+  jax.block_until_ready(out)
+  times = []
+  for _ in range(repeats):
+    t0 = time.perf_counter()
+    jax.block_until_ready(compiled(worlds))
+    times.append(time.perf_counter() - t0)
+  step_s = statistics.median(times) / STEPS
+  return dict(n=n, batch=batch, kind=kind, compile_s=compile_s, step_s=step_s,
+              body_step_s=step_s / (n * batch), status=int(np.max(np.asarray(out.status))),
+              row=cfg.grid.row_size if cfg.grid else n)
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--quick", action="store_true", help="N up to 1024, fewer repeats")
+  args = parser.parse_args()
+  sizes = [64, 128, 256, 512, 1024] if args.quick else [64, 128, 256, 512, 1024, 2048, 4096]
+  repeats = 3 if args.quick else 5
+  # (kind, batch, largest n): dense is O(n^2) in time and memory, so it stops earlier.
+  plan = [("grid", 1, 4096), ("dense", 1, 2048), ("grid", 16, 4096), ("dense", 16, 1024)]
+  settings = [(n, b, k) for k, b, top in plan for n in sizes if n <= top]
+  rows = []
+  for n, b, k in tqdm(settings, desc="scaling", unit="setting"):
+    rows.append(time_setting(n, b, k, repeats))
+  write(rows)
+
+
+def write(rows: list[dict]) -> None:
+  RESULTS.mkdir(exist_ok=True)
+  device = jax.devices()[0].device_kind
+  lines = [
+      "# Grid against dense: time per step over bodies per world",
+      "",
+      f"`python benchmarks/scaling.py` on {device}, jax {jax.__version__}. Scene: `scenes.box_room` "
+      "(constant density, long floor/ceiling/walls), gravity, friction 0.3, depth 4, 1 iteration. "
+      f"Median of repeats of a jitted, vmapped {STEPS}-step rollout, compile excluded.",
+      "",
+      "| broadphase | worlds B | bodies N | row size M | compile s | ms / step | ns / body-step | per-body vs N=64 | status |",
+      "|---|---|---|---|---|---|---|---|---|",
+  ]
+  for r in rows:
+    first = next(x for x in rows if x["kind"] == r["kind"] and x["batch"] == r["batch"])
+    lines.append(
+        f"| {r['kind']} | {r['batch']} | {r['n']} | {r['row']} | {r['compile_s']:.2f} | "
+        f"{r['step_s'] * 1e3:.3f} | {r['body_step_s'] * 1e9:.0f} | "
+        f"{r['body_step_s'] / first['body_step_s']:.2f}x | {r['status']} |")
+  lines += ["", "Crossover (grid faster than dense), per batch size:", ""]
+  for b in sorted({r["batch"] for r in rows}):
+    both = [(r["n"], r["step_s"], s["step_s"]) for r in rows for s in rows
+            if r["batch"] == s["batch"] == b and r["n"] == s["n"] and r["kind"] == "grid"
+            and s["kind"] == "dense"]
+    faster = [n for n, g, d in both if g < d]
+    lines.append(f"- B={b}: grid faster from N={min(faster)}" if faster
+                 else f"- B={b}: dense faster at every N measured")
+  (RESULTS / "scaling.md").write_text("\n".join(lines) + "\n")
+  plot(rows)
+  print("\n".join(lines))
+
+
+def plot(rows: list[dict]) -> None:
+  import matplotlib
+  matplotlib.use("Agg")
+  import matplotlib.pyplot as plt
+  fig, ax = plt.subplots(figsize=(7, 4.5))
+  for kind, style in (("grid", "-o"), ("dense", "--s")):
+    for b in sorted({r["batch"] for r in rows}):
+      sel = [r for r in rows if r["kind"] == kind and r["batch"] == b]
+      if sel:
+        ax.plot([r["n"] for r in sel], [r["body_step_s"] * 1e9 for r in sel], style,
+                label=f"{kind}, B={b}")
+  ax.set_xscale("log", base=2)
+  ax.set_yscale("log")
+  ax.set_xlabel("bodies per world N")
+  ax.set_ylabel("ns per body-step")
+  ax.set_title("jaxchain: time per body-step (flat = O(N))")
+  ax.grid(True, which="both", alpha=0.3)
+  ax.legend()
+  fig.tight_layout()
+  fig.savefig(RESULTS / "scaling.png", dpi=120)
+
+
+if __name__ == "__main__":
+  main()
