@@ -52,8 +52,15 @@ def body_mass(inv_mass: jax.Array, active: jax.Array) -> jax.Array:
 
 def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: jax.Array,
                  cand: Candidates, *, depth: int, skin: float,
-                 track_immovable: bool = True) -> jax.Array:
+                 track_immovable: bool = True, ref_pos: jax.Array | None = None):
   """The displacement one resolution pass applies to every body.
+
+  With `ref_pos` (where the bodies would be without this step's motion: the step's
+  start plus the overlap recovery done so far) the pass also returns the part of
+  the displacement that the motion caused: each contact's depth less the overlap
+  the same pair has at `ref_pos`, pushed through the same units. A time step turns
+  only that part into velocity, so recovering from overlap that was already there
+  never adds energy.
 
   Args:
     pos: `[n, 2]` centres.
@@ -66,8 +73,11 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
     track_immovable: trace the "leans on something immovable" flag (static);
       `False` is only correct when no linked body is immovable.
 
+    ref_pos: optional `[n, 2]` motion-free reference positions.
+
   Returns:
-    `[n, 2]` displacement; exactly 0 for immovable bodies.
+    `[n, 2]` displacement, exactly 0 for immovable bodies; with `ref_pos`, the pair
+    `(displacement, displacement caused by this step's motion)`.
   """
   c = geometry.contacts(pos, half, cand, skin)
   dirs = jnp.arange(geometry.NUM_DIRECTIONS, dtype=c.direction.dtype)[:, None, None]
@@ -97,15 +107,31 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   weight = safe_divide(mass_j, mass_i + mass_j, default=0.5)
   weight = jnp.where(leans_j, 1.0, weight)
   weight = jnp.where(leans_i, 0.0, weight)
-  share = c.depth * weight  # [n, m]: how far i is pushed along e by this contact.
+  depths = c.depth[None]
+  if ref_pos is not None:
+    depths = jnp.stack([c.depth, jnp.maximum(c.depth - _overlap_at(ref_pos, half, c, cand), 0.0)])
+  share = depths * weight[None]  # [k, n, m]: how far i is pushed along e by this contact.
 
   # 4. Forward push, K + 1 hops of max-plus along each direction.
   movable = ~immovable
 
   def push_hop(_, disp):
-    pushed = jnp.where(back, cand.gather(disp) + share[None], 0.0)
-    return jnp.where(movable[None], jnp.max(pushed, axis=-1, initial=0.0), 0.0)
+    pushed = jnp.where(back[None], cand.gather(disp) + share[:, None], 0.0)
+    return jnp.where(movable[None, None], jnp.max(pushed, axis=-1, initial=0.0), 0.0)
 
-  disp = jnp.zeros(front.shape[:2], pos.dtype)
+  disp = jnp.zeros((depths.shape[0],) + front.shape[:2], pos.dtype)
   disp = lax.fori_loop(0, depth + 1, push_hop, disp)
-  return jnp.stack([disp[0] - disp[1], disp[2] - disp[3]], axis=-1)
+  net = jnp.stack([disp[:, 0] - disp[:, 1], disp[:, 2] - disp[:, 3]], axis=-1)  # [k, n, 2]
+  return net[0] if ref_pos is None else (net[0], net[1])
+
+
+def _overlap_at(ref_pos: jax.Array, half: jax.Array, c: geometry.Contacts,
+                cand: Candidates) -> jax.Array:
+  """`[n, m]` penetration each linked pair has at `ref_pos`, measured along the
+  pair's current contact axis (0 where the pair does not overlap there)."""
+  o = geometry.overlap(ref_pos[:, None, :], half[:, None, :], cand.gather_bodies(ref_pos),
+                       cand.gather_bodies(half))
+  on_y = c.direction >= 2
+  o_axis = jnp.where(on_y, o[..., 1], o[..., 0])
+  o_other = jnp.where(on_y, o[..., 0], o[..., 1])
+  return jnp.where(c.link & (o_other > 0), jnp.maximum(o_axis, 0.0), 0.0)

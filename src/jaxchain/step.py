@@ -40,23 +40,37 @@ def _check_single(world: World, fn: str) -> None:
         f"for a batch use jax.vmap({fn}, in_axes=(0, None)) or functools.partial(jc.{fn}, config=cfg)")
 
 
-def _resolve_positions(world: World, pos: jax.Array, config: Config) -> tuple[jax.Array, jax.Array]:
+def _resolve_positions(world: World, pos: jax.Array, config: Config,
+                       start: jax.Array | None = None):
   """Positions after `config.iterations` chain passes, and the status bits they raised.
 
-  Dense candidates are built once; grid candidates are rebuilt at the start of every
-  pass, from the positions that pass starts at.
+  Grid candidates are rebuilt at the start of every pass, from the positions that
+  pass starts at. With `start` (positions at the start of the step) also returns the
+  part of the displacement this step's motion caused: every pass measures the
+  overlap that was there anyway at `ref`, the start moved by the recovery part of
+  the passes so far (see `chain.displacement`).
+
+  Returns:
+    `(pos, status)`, or `(pos, motion_push, status)` with `start`.
   """
   mass = chain.body_mass(world.inv_mass, world.active)
   immovable = ~world.movable
+  pass_fn = functools.partial(chain.displacement, half=world.half, mass=mass, immovable=immovable,
+                              depth=config.depth, skin=config.skin,
+                              track_immovable=config.immovable)
 
   def one_pass(_, carry):
-    p, code = carry
+    p, ref, motion, code = carry
     cand, found = broadphase.candidates(p, world, config)
-    p = p + chain.displacement(p, world.half, mass, immovable, cand, depth=config.depth,
-                               skin=config.skin, track_immovable=config.immovable)
-    return p, code | found
+    if start is None:
+      return p + pass_fn(p, cand=cand), ref, motion, code | found
+    total, caused = pass_fn(p, cand=cand, ref_pos=ref)
+    return p + total, ref + (total - caused), motion + caused, code | found
 
-  return lax.fori_loop(0, config.iterations, one_pass, (pos, jnp.zeros((), jnp.int32)))
+  ref = pos if start is None else start
+  p, _, motion, code = lax.fori_loop(
+      0, config.iterations, one_pass, (pos, ref, jnp.zeros_like(pos), jnp.zeros((), jnp.int32)))
+  return (p, code) if start is None else (p, motion, code)
 
 
 @functools.partial(jax.jit, static_argnames="config")
@@ -90,11 +104,12 @@ def _substep(world: World, config: Config, h: float, accel: jax.Array | None) ->
   if config.has_gravity:
     vel = vel + jnp.where(movable, jnp.asarray(config.gravity, vel.dtype)[None] * h, 0.0)
   predicted = world.pos + jnp.where(world.active[:, None], vel * h, 0.0)
-  resolved, code = _resolve_positions(world, predicted, config)
-  push = resolved - predicted
+  resolved, push, code = _resolve_positions(world, predicted, config, start=world.pos)
   # Position-based velocity update, perfectly inelastic: a body stopped by a contact
-  # loses its velocity into it, a pushed body moves on with its pusher, and no
-  # resolution reverses a velocity (that would turn penetration recovery into a bounce).
+  # loses its velocity into it and a pushed body moves on with its pusher. Only the
+  # push this step's motion caused counts (overlap the step started with is removed
+  # by position alone), and no resolution reverses a velocity: recovering from
+  # penetration never becomes a bounce or an explosion.
   moved = vel + push / h
   vel = jnp.where(vel * moved < 0, 0.0, moved)
   if config.has_friction:
