@@ -171,7 +171,7 @@ def candidates(pos: jax.Array, world, config: Config) -> tuple[Candidates, jax.A
   Returns:
     `(candidates, status)`; status is int32 bits, 0 for dense pairs.
   """
-  if config.uses_grid(world.num_bodies):
+  if config.uses_grid(world.num_bodies) and world.num_bodies > 0:
     return grid(pos, world.half, world.active, world.movable, config.grid, config.skin)
   return dense(world.active), jnp.zeros((), jnp.int32)
 

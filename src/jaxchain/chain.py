@@ -11,8 +11,8 @@ One pass over a fixed candidate table (DESIGN.md section 3):
    that leans on an immovable body takes none; if both do, nothing moves;
 4. forward push, K + 1 hops (max-plus): a body's displacement along e is the
    largest, over the bodies pushing it along e, of their displacement along e
-   plus its own share of that contact, so what a pushed body is pushed into
-   moves with it;
+   plus its own share of that contact (minus the gap, for a link within the
+   skin), so what a pushed body is pushed into moves with it;
 5. net displacement per axis = (along +) - (along -), which also resolves squeezes.
 
 The seed article writes the split as `ratioA = massA / (massA + massB)` applied
@@ -22,6 +22,8 @@ proportion to the *other* side's mass.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -50,9 +52,24 @@ def body_mass(inv_mass: jax.Array, active: jax.Array) -> jax.Array:
   return jnp.where(active, safe_divide(1.0, inv_mass), 0.0)
 
 
+class Pass(NamedTuple):
+  """What one resolution pass computes.
+
+  Attributes:
+    disp: `[n, 2]` displacement; exactly 0 for immovable bodies.
+    caused: `[n, 2]` the part of it this step's motion caused (with `ref_pos`), else None.
+    exhausted: bool, the K hops did not reach the end of some chain (one hop more
+      would still have changed a unit mass or a push).
+  """
+
+  disp: jax.Array
+  caused: jax.Array | None
+  exhausted: jax.Array
+
+
 def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: jax.Array,
                  cand: Candidates, *, depth: int, skin: float,
-                 track_immovable: bool = True, ref_pos: jax.Array | None = None):
+                 track_immovable: bool = True, ref_pos: jax.Array | None = None) -> Pass:
   """The displacement one resolution pass applies to every body.
 
   With `ref_pos` (where the bodies would be without this step's motion: the step's
@@ -76,8 +93,8 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
     ref_pos: optional `[n, 2]` motion-free reference positions.
 
   Returns:
-    `[n, 2]` displacement, exactly 0 for immovable bodies; with `ref_pos`, the pair
-    `(displacement, displacement caused by this step's motion)`.
+    A `Pass`: the displacement, the part caused by motion (with `ref_pos`) and
+    whether the depth was exhausted.
   """
   c = geometry.contacts(pos, half, cand, skin)
   dirs = jnp.arange(geometry.NUM_DIRECTIONS, dtype=c.direction.dtype)[:, None, None]
@@ -95,6 +112,9 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   unit_mass = jnp.broadcast_to(mass, front.shape[:2])
   leans = jnp.broadcast_to(immovable, front.shape[:2])
   unit_mass, leans = lax.fori_loop(0, depth, backing_hop, (unit_mass, leans))
+  # One hop more tells whether K hops reached the end of the chains (reporting only).
+  more_mass, more_leans = backing_hop(0, (unit_mass, leans))
+  unit_short = (more_mass != unit_mass) | (more_leans != leans)  # [4, n]
 
   # 3. Split each contact. From row i: j is in front along d, i moves along e = d ^ 1,
   # i's unit is the one behind it (M_e(i)), j's unit the one in front of j (M_d(j)).
@@ -104,13 +124,17 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   mass_i, leans_i = unit_mass[e, rows], leans[e, rows]
   nbr = cand.partner_index()
   mass_j, leans_j = unit_mass[d, nbr], leans[d, nbr]
+  # Only the units a penetrating contact splits by matter for the report.
+  backing_short = jnp.any((c.depth > 0) & (unit_short[e, rows] | unit_short[d, nbr]))
   weight = safe_divide(mass_j, mass_i + mass_j, default=0.5)
   weight = jnp.where(leans_j, 1.0, weight)
   weight = jnp.where(leans_i, 0.0, weight)
   depths = c.depth[None]
   if ref_pos is not None:
     depths = jnp.stack([c.depth, jnp.maximum(c.depth - _overlap_at(ref_pos, half, c, cand), 0.0)])
-  share = depths * weight[None]  # [k, n, m]: how far i is pushed along e by this contact.
+  # [k, n, m]: how far i is pushed along e by this contact beyond j's own push. Across a
+  # gap (a link within the skin) i moves only once j has closed it: share = -gap.
+  share = jnp.where(c.overlap[None] > 0, depths * weight[None], c.overlap[None])
 
   # 4. Forward push, K + 1 hops of max-plus along each direction.
   movable = ~immovable
@@ -121,8 +145,10 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
 
   disp = jnp.zeros((depths.shape[0],) + front.shape[:2], pos.dtype)
   disp = lax.fori_loop(0, depth + 1, push_hop, disp)
+  push_short = jnp.any(push_hop(0, disp) != disp)
+  exhausted = lax.stop_gradient(backing_short | push_short)
   net = jnp.stack([disp[:, 0] - disp[:, 1], disp[:, 2] - disp[:, 3]], axis=-1)  # [k, n, 2]
-  return net[0] if ref_pos is None else (net[0], net[1])
+  return Pass(net[0], net[1] if ref_pos is not None else None, exhausted)
 
 
 def _overlap_at(ref_pos: jax.Array, half: jax.Array, c: geometry.Contacts,

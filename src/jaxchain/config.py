@@ -160,7 +160,10 @@ class Config:
 
     Looks at the (host) world, or a padded batch of worlds, and switches off:
     immovable-body handling when no active body is immovable, and chain depth
-    beyond the number of movable bodies (no chain can be longer). Gravity and
+    beyond the number of movable bodies (no chain can be longer), and substeps
+    beyond what the current speeds need to keep every body from moving, in one
+    substep, its own half-extent plus the thinnest body's (the tunnelling limit;
+    see `status.FAST_BODY`; later speed-ups are not foreseen). Gravity and
     friction are whatever the overrides say (gravity defaults on, friction off);
     with zero gravity or friction their code is not traced. The broadphase is
     dense pairs up to `DENSE_MAX_BODIES` body slots, else the grid, sized by
@@ -179,9 +182,10 @@ class Config:
     inv_mass = np.asarray(world.inv_mass)
     n_movable = int(np.max(np.sum(active & (inv_mass > 0), axis=-1), initial=0))
     has_immovable = bool(np.any(active & (inv_mass == 0)))
-    derived_keys = ("depth", "immovable", "broadphase", "grid")
+    derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps")
     base = cls(**{k: v for k, v in overrides.items() if k not in derived_keys})
-    derived = dict(depth=min(cls.depth, max(n_movable, 1)), immovable=has_immovable)
+    derived = dict(depth=min(cls.depth, max(n_movable, 1)), immovable=has_immovable,
+                   substeps=_substeps_for(world, base.dt))
     broadphase = overrides.get("broadphase", "auto")
     if broadphase in ("auto", "grid") and "grid" not in overrides:
       from jaxchain import broadphase as bp  # Import here: broadphase imports config.
@@ -194,3 +198,16 @@ class Config:
         derived.update(broadphase="dense")
     derived.update({k: v for k, v in overrides.items() if k in derived_keys})
     return base.replace(**derived)
+
+
+def _substeps_for(world, dt: float, safety: float = 1.25) -> int:
+  """Fewest substeps with `|v| dt / substeps < (half + thinnest half) / safety` for
+  every active body and axis, at the world's current velocities."""
+  active = np.asarray(world.active)
+  if not active.any():
+    return 1
+  half = np.asarray(world.half, np.float64)
+  speed = np.abs(np.asarray(world.vel, np.float64))
+  thinnest = np.min(half[active], axis=0)
+  ratio = np.where(active[..., None], speed * dt * safety / (half + thinnest), 0.0)
+  return max(1, int(np.ceil(np.max(ratio))))

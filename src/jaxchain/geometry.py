@@ -27,11 +27,13 @@ class Contacts:
     direction: int32 in 0..3, direction from body i towards partner j; resolving
       the contact moves j along it and i against it.
     depth: penetration along the contact axis, `max(overlap, 0)`; 0 unless `link`.
+    overlap: signed overlap along the contact axis (negative: a gap within `skin`).
   """
 
   link: jax.Array
   direction: jax.Array
   depth: jax.Array
+  overlap: jax.Array
 
 
 def overlap(pos_a, half_a, pos_b, half_b):
@@ -66,5 +68,5 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float) -> 
   link = cand.mask & (o_other > 0) & (o_axis >= -skin)
   direction = 2 * use_y.astype(jnp.int32) + (~positive).astype(jnp.int32)
   depth = jnp.where(link, jnp.maximum(o_axis, 0.0), 0.0)
-  return Contacts(link=link, direction=direction, depth=depth)
+  return Contacts(link=link, direction=direction, depth=depth, overlap=o_axis)
 

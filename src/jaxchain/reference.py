@@ -90,14 +90,16 @@ class _Scene:
 
   def push(self, i: int, axis: int, amount: float, visited: set[int]) -> None:
     """Moves body i by `amount` along axis and, first, everything it leans on in
-    that direction by the same amount (the unit moves rigidly)."""
+    that direction by the same amount (the unit moves rigidly); a body it leans on
+    across a gap (within the skin) moves by the amount less the gap."""
     visited.add(i)
     sign = 1.0 if amount > 0 else -1.0
-    ahead = self.in_front(i, axis, sign)
+    ahead = [(j, min(self.contact(i, j)[2], 0.0)) for j in self.in_front(i, axis, sign)]
     self.pos[i, axis] += amount
-    for j in ahead:
-      if j not in visited and not np.isinf(self.mass[j]):
-        self.push(j, axis, amount, visited)
+    for j, gap_overlap in ahead:
+      rest = abs(amount) + gap_overlap
+      if j not in visited and not np.isinf(self.mass[j]) and rest > 0:
+        self.push(j, axis, sign * rest, visited)
 
   def resolve_between(self, a: int, b: int) -> bool:
     """The seed's resolveCollisionsBetween, with units and the mass correction.

@@ -13,6 +13,9 @@ OK = 0
 CELL_OVERFLOW = 1 << 0
 STATIC_OVERFLOW = 1 << 1
 BODY_TOO_LARGE = 1 << 2
+NON_FINITE = 1 << 3
+DEPTH_EXHAUSTED = 1 << 4
+FAST_BODY = 1 << 5
 
 MESSAGES = {
     CELL_OVERFLOW: "a grid cell held more movable bodies than Config.grid.cell_capacity; "
@@ -23,6 +26,12 @@ MESSAGES = {
                      "Config.for_world, or raise those capacities)",
     BODY_TOO_LARGE: "a movable body is larger than Config.grid.reach allows; its contacts may "
                     "be missed (re-run Config.for_world on this world)",
+    NON_FINITE: "the state went NaN or inf (check inputs: accelerations, dt, coordinates far "
+                "beyond float precision)",
+    DEPTH_EXHAUSTED: "a chain was longer than Config.depth could resolve in the last pass; "
+                     "penetration may be left (raise depth or iterations)",
+    FAST_BODY: "a body moved farther in one substep than it and the thinnest body are thick, "
+               "so it may have passed through something (raise Config.substeps)",
 }
 
 

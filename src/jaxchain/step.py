@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxchain import broadphase, chain, geometry
+from jaxchain import broadphase, chain, geometry, status
 from jaxchain.config import Config
 from jaxchain.world import World
 
@@ -60,16 +60,19 @@ def _resolve_positions(world: World, pos: jax.Array, config: Config,
                               track_immovable=config.immovable)
 
   def one_pass(_, carry):
-    p, ref, motion, code = carry
+    p, ref, motion, code, _ = carry
     cand, found = broadphase.candidates(p, world, config)
-    if start is None:
-      return p + pass_fn(p, cand=cand), ref, motion, code | found
-    total, caused = pass_fn(p, cand=cand, ref_pos=ref)
-    return p + total, ref + (total - caused), motion + caused, code | found
+    out = pass_fn(p, cand=cand, ref_pos=None if start is None else ref)
+    if start is not None:
+      ref, motion = ref + (out.disp - out.caused), motion + out.caused
+    return p + out.disp, ref, motion, code | found, out.exhausted
 
   ref = pos if start is None else start
-  p, _, motion, code = lax.fori_loop(
-      0, config.iterations, one_pass, (pos, ref, jnp.zeros_like(pos), jnp.zeros((), jnp.int32)))
+  zero = jnp.zeros((), jnp.int32)
+  p, _, motion, code, exhausted = lax.fori_loop(
+      0, config.iterations, one_pass, (pos, ref, jnp.zeros_like(pos), zero, jnp.zeros((), bool)))
+  # Only the last pass counts: earlier passes may leave work that later ones finish.
+  code = code | jnp.where(exhausted, status.DEPTH_EXHAUSTED, 0)
   return (p, code) if start is None else (p, motion, code)
 
 
@@ -105,6 +108,7 @@ def _substep(world: World, config: Config, h: float, accel: jax.Array | None) ->
     vel = vel + jnp.where(movable, jnp.asarray(config.gravity, vel.dtype)[None] * h, 0.0)
   predicted = world.pos + jnp.where(world.active[:, None], vel * h, 0.0)
   resolved, push, code = _resolve_positions(world, predicted, config, start=world.pos)
+  code = code | jnp.where(_too_fast(world, vel, h), status.FAST_BODY, 0)
   # Position-based velocity update, perfectly inelastic: a body stopped by a contact
   # loses its velocity into it and a pushed body moves on with its pusher. Only the
   # push this step's motion caused counts (overlap the step started with is removed
@@ -114,7 +118,18 @@ def _substep(world: World, config: Config, h: float, accel: jax.Array | None) ->
   vel = jnp.where(vel * moved < 0, 0.0, moved)
   if config.has_friction:
     vel = _friction(world, resolved, vel, push, config, h)
+  bad = world.active[:, None] & ~(jnp.isfinite(resolved) & jnp.isfinite(vel))
+  code = code | jnp.where(jnp.any(bad), status.NON_FINITE, 0)
   return world.replace(pos=resolved, vel=vel, status=world.status | code)
+
+
+def _too_fast(world: World, vel: jax.Array, h: float) -> jax.Array:
+  """Whether some body moves, in one substep, at least its own half-extent plus the
+  smallest half-extent of any body along an axis: past that its centre can cross a
+  thin body's centre, and the contact would push it out on the far side."""
+  thinnest = jnp.min(jnp.where(world.active[:, None], world.half, jnp.inf), axis=0, initial=jnp.inf)
+  reach = world.half + thinnest[None]
+  return jnp.any(world.active[:, None] & (jnp.abs(vel) * h >= reach))
 
 
 def _friction(world: World, pos, vel, push, config: Config, h: float) -> jax.Array:
