@@ -78,3 +78,12 @@ def test_lean_config_gives_the_same_answer_on_scenes_it_fits():
   assert lean.immovable is False
   full = lean.replace(immovable=True, depth=8)
   np.testing.assert_allclose(jc.resolve(world, lean).pos, jc.resolve(world, full).pos, atol=1e-6)
+
+
+def test_grid_is_not_traced_for_small_worlds():
+  world = scenes.push_chain(3, wall=True).world()
+  lean = jc.Config.for_world(world)
+  assert lean.broadphase == "dense"
+  grid = lean.replace(broadphase="grid", grid=jc.broadphase.allocate(world))
+  text = lambda cfg: str(jax.make_jaxpr(lambda w: jc.step(w, cfg))(world))
+  assert "sort" not in text(lean) and "sort" in text(grid)

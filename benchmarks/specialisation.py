@@ -1,0 +1,109 @@
+"""What each feature costs on the demo scene, and so what `Config.for_world` saves.
+
+The demo scene (`scenes.platformer`, 14 bodies, walls, friction 0.3) is stepped in a
+batch of worlds with the config `Config.for_world` picks, then with one feature
+switched on or made bigger at a time: immovable tracking off vs on is not a choice
+here (the room has walls), so the scene-free variants are timed on the same bodies
+with the walls made movable. Each variant is timed as a jitted, vmapped 20-step
+rollout, compile excluded; variants are measured in interleaved rounds and each
+reported as a ratio to the lean config measured in the same round (the machines are
+noisy). Writes `results/specialisation.md`.
+
+    python benchmarks/specialisation.py [--batch 256] [--rounds 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm import tqdm
+
+import jaxchain as jc
+from jaxchain import broadphase, scenes
+
+RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+STEPS = 20
+
+
+def build(batch: int):
+  rng = np.random.default_rng(0)
+  layouts = [scenes.platformer(rng) for _ in range(batch)]
+  worlds = jc.stack([p.scene.world() for p in layouts])
+  controls = np.zeros(worlds.pos.shape, np.float32)
+  controls[:, layouts[0].player, 0] = 20.0
+  return worlds, jnp.asarray(controls)
+
+
+def variants(worlds) -> dict[str, tuple[jc.Config, object]]:
+  lean = jc.Config.for_world(worlds, friction=0.3)
+  free = worlds.replace(inv_mass=jnp.where(worlds.active, jnp.maximum(worlds.inv_mass, 1e-3), 0.0))
+  lean_free = jc.Config.for_world(free, friction=0.3)
+  return {
+      "lean (for_world)": (lean, worlds),
+      "friction off": (lean.replace(friction=0.0), worlds),
+      "gravity off (top-down scene)": (lean.replace(gravity=(0.0, 0.0)), worlds),
+      "substeps 2": (lean.replace(substeps=2), worlds),
+      "iterations 2": (lean.replace(iterations=2), worlds),
+      f"depth 32 (for_world picks {lean.depth})": (lean.replace(depth=32), worlds),
+      "grid instead of dense": (lean.replace(broadphase="grid", grid=broadphase.allocate(worlds)), worlds),
+      "no walls, immovable tracking off (for_world)": (lean_free, free),
+      "no walls, immovable tracking on": (lean_free.replace(immovable=True), free),
+  }
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--batch", type=int, default=256)
+  parser.add_argument("--rounds", type=int, default=5)
+  args = parser.parse_args()
+  worlds, controls = build(args.batch)
+  compiled = {}
+  for name, (cfg, w) in tqdm(variants(worlds).items(), desc="compile", unit="variant"):
+    fn = jax.jit(jax.vmap(lambda w, u, cfg=cfg: jc.rollout(w, cfg, STEPS, u)[0]))
+    compiled[name] = (fn.lower(w, controls).compile(), w)
+    jax.block_until_ready(compiled[name][0](w, controls))
+  times = {name: [] for name in compiled}
+  for _ in tqdm(range(args.rounds), desc="rounds", unit="round"):
+    for name, (fn, w) in compiled.items():
+      t0 = time.perf_counter()
+      jax.block_until_ready(fn(w, controls))
+      times[name].append((time.perf_counter() - t0) / STEPS)
+  write(times, args.batch)
+
+
+def write(times: dict[str, list[float]], batch: int) -> None:
+  base = times["lean (for_world)"]
+  lines = [
+      "# What each feature costs on the demo scene",
+      "",
+      f"`python benchmarks/specialisation.py --batch {batch}` on {jax.devices()[0].device_kind}, "
+      f"jax {jax.__version__}: `scenes.platformer` (14 bodies), {batch} worlds, jitted vmapped "
+      f"{STEPS}-step rollouts, compile excluded. Ratio = variant / lean config, per round "
+      "(interleaved), median over rounds.",
+      "",
+      "| variant | ms / batched step (median) | ratio to lean | world-steps/s |",
+      "|---|---|---|---|",
+  ]
+  for name, ts in times.items():
+    ratios = [t / b for t, b in zip(ts, base)]
+    med = statistics.median(ts)
+    lines.append(f"| {name} | {med * 1e3:.3f} | {statistics.median(ratios):.2f}x | {batch / med:.3g} |")
+  lines += [
+      "",
+      "Ratios above 1 are what the lean config saves by leaving the feature out. The",
+      "\"no walls\" rows use the same bodies with the walls made movable (mass 1000), so",
+      "that switching off immovable tracking is allowed; they compare with each other.",
+  ]
+  RESULTS.mkdir(exist_ok=True)
+  (RESULTS / "specialisation.md").write_text("\n".join(lines) + "\n")
+  print("\n".join(lines))
+
+
+if __name__ == "__main__":
+  main()
