@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import os
 import pathlib
 import sys
 import time
@@ -109,7 +110,7 @@ def run_case(world: jc.World, cfg: jc.Config, steps: int, controls=None, driven:
   immovable_moved = float(np.max(np.abs(pos[:, still] - pos0[still]), initial=0.0))
   pen = np.asarray(penetrations(world, traj.pos), np.float64)
   pen0 = float(metrics.max_penetration(world))
-  g = -float(cfg.gravity[1])
+  g = 0.0 - cfg.gravity[1]  # 0.0 - keeps -0.0 out of the tables.
   mass = np.where(movable, 1 / np.where(movable, inv_mass, 1), 0.0)
   e = energy(mass, np.concatenate([pos0[None], pos]), np.concatenate([vel0[None], vel]), g)
   gain = np.diff(e)  # gain[k]: energy added by step k.
@@ -267,7 +268,8 @@ def tunnel_cases(steps: int, bar) -> list[tuple[str, dict]]:
       label = "forced 1" if forced else "for_world"
       r.update(speed=speed, passed=passed, forced=forced, safe=per_sub < 0.55)
       lead = (f"{speed:g} | {cfg.substeps} ({label}) | {per_sub:.3f} | {'yes' if per_sub < 0.55 else '**no**'} | "
-              f"{x.max():.4g} | {x[-1]:.4g} | {'**yes**' if passed else 'no'} | "
+              f"{x.max():.4g} | {x[-1]:.4g} | {abs(float(r['final'].vel[0, 0])):.4g} | "
+              f"{'**yes**' if passed else 'no'} | "
               f"{'set' if r['status'] & status.FAST_BODY else '-'}")
       rows.append((lead, r))
       bar.update()
@@ -304,7 +306,12 @@ def soak(batch: int, steps: int, seed: int = 0) -> dict:
 
   def one(w, u, p0):
     final, traj = jc.rollout(w, cfg, chunk, u)
-    pen = jax.vmap(lambda p: metrics.max_penetration(w.replace(pos=p)))(traj.pos)  # [C]
+    depth = jax.vmap(lambda p: metrics.penetration(w.replace(pos=p)))(traj.pos)  # [C, n, n]
+    flat = depth.reshape(chunk, -1)
+    pen, pair = jnp.max(flat, -1), jnp.argmax(flat, -1)  # [C]: worst pair per step.
+    fixed = ~w.movable
+    walls = jnp.where(fixed[:, None] | fixed[None], depth, 0.0).reshape(chunk, -1)
+    intrusion, wall_pair = jnp.max(walls, -1), jnp.argmax(walls, -1)  # [C]
     mov = w.movable[None, :, None]
     speed = jnp.max(jnp.where(mov, jnp.abs(traj.vel), 0.0), axis=(1, 2))  # [C]
     out = (traj.pos < jnp.asarray(lo - ROOM_TOL, traj.pos.dtype)) | (traj.pos > jnp.asarray(hi + ROOM_TOL, traj.pos.dtype))
@@ -312,7 +319,7 @@ def soak(batch: int, steps: int, seed: int = 0) -> dict:
     finite = jnp.all(jnp.isfinite(traj.pos)) & jnp.all(jnp.isfinite(traj.vel))
     still = (w.active & ~w.movable)[None, :, None]
     moved = jnp.max(jnp.where(still, jnp.abs(traj.pos - p0[None]), 0.0))
-    return final, pen, speed, left, ~finite, moved
+    return final, pen, pair, intrusion, wall_pair, speed, left, ~finite, moved
 
   run = jax.jit(jax.vmap(one))
   controls = jnp.zeros((batch, chunk, n, 2), jnp.float32)
@@ -321,7 +328,7 @@ def soak(batch: int, steps: int, seed: int = 0) -> dict:
   compile_s = time.perf_counter() - t0
 
   world, pos0 = worlds, worlds.pos
-  pens, speeds = [], []
+  pens, pairs, intrusions, wall_pairs, speeds = [], [], [], [], []
   left = np.zeros((batch, n), bool)
   non_finite = np.zeros(batch, bool)
   immovable_moved = 0.0
@@ -331,9 +338,13 @@ def soak(batch: int, steps: int, seed: int = 0) -> dict:
     u[:, :, room.player] = accel[:, np.arange(start, start + chunk) // SOAK_HOLD]
     u = jnp.asarray(u)
     t0 = time.perf_counter()
-    world, pen, speed, gone, bad, moved = jax.block_until_ready(compiled(world, u, pos0))
+    world, pen, pair, intrusion, wall_pair, speed, gone, bad, moved = jax.block_until_ready(
+        compiled(world, u, pos0))
     run_s += time.perf_counter() - t0
     pens.append(np.asarray(pen))
+    pairs.append(np.asarray(pair))
+    intrusions.append(np.asarray(intrusion))
+    wall_pairs.append(np.asarray(wall_pair))
     speeds.append(np.asarray(speed))
     left |= np.asarray(gone)
     non_finite |= np.asarray(bad)
@@ -349,10 +360,26 @@ def soak(batch: int, steps: int, seed: int = 0) -> dict:
   speed_in = np.concatenate([np.zeros((batch, 1)), speed[:, :-1]], axis=1)
   travel = (speed_in + (g + SOAK_PUSH) * cfg.dt) * cfg.dt
   worst = np.unravel_index(np.nanargmax(pen), pen.shape)
+  pair = np.concatenate(pairs, axis=1)
+  intrusion = np.concatenate(intrusions, axis=1)
+  ratio = pen / travel
+  over = np.unravel_index(np.nanargmax(ratio), ratio.shape)
+  names = body_names(room, n)
+  i, j = divmod(int(pair[over]), n)
+  worst_ratio = dict(world=int(over[0]), step=int(over[1]), pen=float(pen[over]), bound=float(travel[over]),
+                     ratio=float(ratio[over]), pair=f"{names[i]} and {names[j]}",
+                     before=float(pen[over[0], over[1] - 1]) if over[1] else 0.0)
+  i, j = divmod(int(pair[worst]), n)
+  worst_pair = f"{names[i]} and {names[j]}"
+  deepest = np.unravel_index(np.nanargmax(intrusion), intrusion.shape)
+  i, j = divmod(int(np.concatenate(wall_pairs, axis=1)[deepest]), n)
+  intrusion_at = f"world {deepest[0]}, step {deepest[1]}, {names[i]} and {names[j]}"
   return dict(
       batch=batch, steps=steps, n=n, depth=cfg.depth, substeps=cfg.substeps, broadphase=cfg.broadphase,
       compile_s=compile_s, run_s=run_s, world_steps_per_s=batch * steps / run_s,
-      pen_max=float(np.nanmax(pen)), pen_worst=(int(worst[0]), int(worst[1])),
+      pen_max=float(np.nanmax(pen)), pen_worst=(int(worst[0]), int(worst[1])), worst_pair=worst_pair,
+      bound_at_worst=float(travel[worst]), worst_ratio=worst_ratio,
+      intrusion_max=float(np.nanmax(intrusion)), intrusion_at=intrusion_at, intrusion_final=float(np.nanmax(intrusion[:, -1])),
       pen_p999=float(np.nanpercentile(pen, 99.9)), pen_p99=float(np.nanpercentile(pen, 99)),
       pen_median=float(np.nanmedian(pen)), pen_final=float(np.nanmax(pen[:, -1])),
       over_1e3=int(np.sum(pen > 1e-3)), over_travel=int(np.sum(pen > travel + 1e-6)),
@@ -361,6 +388,18 @@ def soak(batch: int, steps: int, seed: int = 0) -> dict:
       immovable_moved=immovable_moved, codes=codes, messages=check_messages(world),
       pen_per_step=np.nanmax(pen, axis=0), travel_per_step=np.max(travel, axis=0),
       lo=lo, hi=hi)
+
+
+def body_names(room: scenes.Platformer, n: int) -> list[str]:
+  """Readable names of the platformer's bodies, by index."""
+  names = ["floor", "ceiling", "left wall", "right wall"] + [f"body {k}" for k in range(4, n)]
+  names[room.player] = "player"
+  for k, b in enumerate(room.row):
+    names[b] = f"row box {k + 1}"
+  stack_first = int(max(room.row)) + 1
+  for b in range(stack_first, n):
+    names[b] = f"stack box {b - stack_first + 1}"
+  return names
 
 
 # --- Report --------------------------------------------------------------------------
@@ -394,8 +433,7 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> No
   lines = [
       "# Stability: stiff and extreme cases over long runs",
       "",
-      f"`{command}` on {device} ({jax.device_count()} device, {jax.local_device_count()} local), "
-      f"jax {jax.__version__}, {date}; whole run {total_s:.0f} s.",
+      f"`{command}` on {device} ({os.cpu_count()} cores), jax {jax.__version__}, {date}; whole run {total_s:.0f} s.",
       "",
       "Every case is measured after every step. *pen*: largest penetration between "
       "resolvable pairs (`metrics.max_penetration`). *non-finite*: the `NON_FINITE` bit or a "
@@ -426,7 +464,9 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> No
   lines += [
       "", "## 4. Far coordinates in float32, friction 0.3, 2000 steps", "",
       f"Five boxes of half-size 1e-3 stacked on a floor around (1e4, 1e4); float32 spacing "
-      f"there is 1 ulp = `np.spacing(np.float32(1e4))` = {ulp:.4g}, so a box is about 2 ulps tall.",
+      f"there is 1 ulp = `np.spacing(np.float32(1e4))` = {ulp:.4g}, so a box is about 2 ulps tall "
+      f"and its position is rounded to whole ulps (the initial overlaps are rounding, and cannot "
+      f"be resolved below an ulp).{far_note(groups['far'][0][1])}",
       ""]
   lines += table("scene | max pen in ulps | drift in ulps", groups["far"])
   lines += ["", "## 5. dt sweep: a resting stack of 10, friction 0.5, 2000 steps each", ""]
@@ -438,12 +478,17 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> No
       "body's: `|v| * dt / substeps < half_box + half_wall = 0.5 + 0.05 = 0.55`. "
       "`Config.for_world` picks substeps from the initial speed with a 1.25 safety factor. "
       "*passed*: the final centre x is beyond the wall's centre. Max x <= 2.5 means stopped at "
-      "the wall.", ""]
-  lines += table("speed | substeps | travel per substep | < 0.55 | max x | final x | passed | FAST_BODY",
+      "the wall. A box that tunnels is pushed out on the far side of the wall, and the "
+      "velocity update adds that push to its speed (*final speed* above the launch speed): "
+      "those runs break the energy bound.", ""]
+  lines += table("speed | substeps | travel per substep | < 0.55 | max x | final x | final speed | passed | FAST_BODY",
                  groups["tunnel"])
   codes = s["codes"]
   bits = {name: int(np.sum((codes & bit) != 0)) for bit, name in BIT_NAMES.items()}
-  bit_text = ", ".join(f"{name} in {k}" for name, k in bits.items() if k) or "none"
+  bit_text = "; ".join(f"{name} in {k}: worlds {', '.join(map(str, np.flatnonzero(codes & bit)[:10]))}"
+                       f"{' ...' if k > 10 else ''}"
+                       for bit, name in BIT_NAMES.items() if (k := bits[name])) or "none"
+  w = s["worst_ratio"]
   lines += [
       "", f"## 7. Soak: the platformer room, {s['batch']} worlds x {s['steps']} steps", "",
       f"`scenes.platformer` (closed room: floor, ceiling, walls; player, a row of 4 boxes, a "
@@ -461,12 +506,17 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> No
       "|---|---|",
       f"| world-steps | {s['batch'] * s['steps']:,} |",
       f"| worst penetration (all steps, all worlds) | {s['pen_max']:.3g} (world {s['pen_worst'][0]}, "
-      f"step {s['pen_worst'][1]}) |",
+      f"step {s['pen_worst'][1]}, {s['worst_pair']}; travel bound there {s['bound_at_worst']:.3g}) |",
+      f"| worst penetration into the floor, ceiling or walls | {s['intrusion_max']:.3g} "
+      f"({s['intrusion_at']}; after the last step: {s['intrusion_final']:.3g}) |",
       f"| penetration 99.9th / 99th percentile / median | {s['pen_p999']:.3g} / {s['pen_p99']:.3g} / "
       f"{s['pen_median']:.3g} |",
       f"| worst penetration after the last step | {s['pen_final']:.3g} |",
       f"| world-steps with penetration > 1e-3 | {s['over_1e3']} |",
       f"| world-steps over the travel bound | {s['over_travel']} (largest bound {s['travel_max']:.3g}) |",
+      f"| largest penetration / travel bound | {w['ratio']:.2f}x: {w['pen']:.3g} vs {w['bound']:.3g} "
+      f"(world {w['world']}, step {w['step']}, {w['pair']}; penetration after the step before: "
+      f"{w['before']:.3g}) |",
       f"| fastest movable body | {s['speed_max']:.3g} units/s |",
       f"| bodies that left the room | {s['left']} (in {s['left_worlds']} worlds) |",
       f"| worlds with non-finite state | {s['non_finite']} |",
@@ -474,7 +524,7 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> No
       f"| worlds with status bits | {int(np.sum(codes != 0))} of {s['batch']} ({bit_text}) |",
       f"| compile s | {s['compile_s']:.2f} |",
       f"| run s | {s['run_s']:.2f} |",
-      f"| world-steps/s | {s['world_steps_per_s']:.3g} |",
+      f"| world-steps/s (with the per-step checks) | {s['world_steps_per_s']:.3g} |",
   ]
   messages = set()
   for group in groups.values():
@@ -487,6 +537,16 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> No
   (RESULTS / "stability.md").write_text("\n".join(lines) + "\n")
   plot(s)
   print("\n".join(lines))
+
+
+def far_note(r: dict) -> str:
+  if not r["status"] & status.FAST_BODY:
+    return ""
+  g, dt = 9.81, r["dt"] / r["substeps"]
+  return (f" FAST_BODY is set although the boxes rest: gravity alone carries a resting box "
+          f"`g h^2` = {g * dt * dt:.2g} into the box below in one substep h = {dt:.3g} s, more than its "
+          f"half-extent plus the thinnest body's (2e-3), and `Config.for_world` picked "
+          f"{r['substeps']} substep(s) from the (zero) initial speeds.")
 
 
 def bounds_paragraph(groups: dict, ulp: float, s: dict) -> str:
@@ -517,17 +577,22 @@ def bounds_paragraph(groups: dict, ulp: float, s: dict) -> str:
       if short else "",
       f"Energy never grew beyond lifting the previous step's penetration in any undriven run"
       if not energy_bad else
-      f"**Energy grew beyond the bound in {len(energy_bad)} undriven runs** (see the tables)",
+      f"**Energy grew beyond the bound in {len(energy_bad)} undriven runs**, "
+      f"{sum(bool(r['status'] & status.FAST_BODY) for r in energy_bad)} of them flagged FAST_BODY "
+      f"(see the tables)",
       f"(largest dE - bound {max(r['excess_max'] for r in undriven):.3g}).",
       "The chain of 256 entered the wall by at most "
       + " and ".join(f"{v:.3g} at depth {k}" for k, v in sorted(chain.items(), reverse=True)) + ".",
       f"Tiny boxes at 1e4 in float32 stayed within {far['pen_max'] / ulp:.2f} ulps of penetration.",
-      f"Tunnelling: with `for_world` substeps the box passed through at speeds "
-      f"{', '.join(through_sub) or 'none'}; with one substep at {', '.join(through_one) or 'none'}"
+      f"Tunnelling: with `for_world` substeps the box "
+      f"{'passed through at speeds ' + ', '.join(through_sub) if through_sub else 'never passed through'}; "
+      f"with one substep it {'passed through at speeds ' + ', '.join(through_one) if through_one else 'never did'}"
       f"{'; every run over the speed limit set FAST_BODY' if flagged else '; FAST_BODY was NOT set on every run over the limit'}.",
-      f"Soak ({s['batch']} x {s['steps']} world-steps): worst penetration {s['pen_max']:.3g}, "
-      f"{s['over_travel']} world-steps over the one-step travel bound, {s['left']} bodies left "
-      f"the room.",
+      f"Soak ({s['batch']} x {s['steps']} world-steps): worst penetration {s['pen_max']:.3g} "
+      f"(into the floor, ceiling or walls {s['intrusion_max']:.3g}), "
+      f"{s['over_travel']} world-steps over the one-step travel bound (at most "
+      f"{s['worst_ratio']['ratio']:.2f}x it), {s['left']} bodies left the room, "
+      f"{s['non_finite']} worlds went non-finite.",
   ]
   return " ".join(p for p in parts if p)
 

@@ -44,7 +44,9 @@ def test_for_world_switches_off_unused_features():
   assert not cfg.has_friction
   walled = scenes.push_chain(20, wall=True).world()
   cfg = jc.Config.for_world(walled, friction=0.5)
-  assert cfg.immovable is True and cfg.depth == jc.Config.depth and cfg.has_friction
+  assert cfg.immovable is True and cfg.depth == 21 and cfg.has_friction  # The whole chain.
+  loose = scenes.random_boxes(np.random.default_rng(0), 30, extent=40.0).world()
+  assert jc.Config.for_world(loose).depth == jc.Config.depth  # Nothing long: the default.
   assert jc.Config.for_world(walled, depth=32).depth == 32  # Overrides win.
 
 

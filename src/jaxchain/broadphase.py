@@ -7,6 +7,7 @@ plus a mask, so the chain resolver does not care how the candidates were found.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -247,3 +248,21 @@ def allocate(world, skin: float = 1e-4, *, headroom: float = 2.0, max_cells: int
                   static_capacity=max(2, int(np.ceil(static_max * headroom))),
                   static_entries=max(16, int(np.ceil(entries_max * headroom))))
 
+
+
+@functools.partial(jax.jit, static_argnames=("spec", "skin", "max_hops"))
+def longest_chain(pos, half, active, movable, *, spec: GridSpec | None, skin: float,
+                  max_hops: int) -> jax.Array:
+  """Links in the longest chain of touching bodies per world (`chain.longest_chain`),
+  for a single world or a batch (leading axis); dense pairs, or the grid with `spec`.
+  Jitted once per shape and static arguments."""
+  from jaxchain import chain  # chain imports this module.
+
+  def one(pos, half, active, movable):
+    if spec is None:
+      cand = dense(active)
+    else:
+      cand, _ = grid(pos, half, active, movable, spec, skin)
+    return chain.longest_chain(pos, half, movable, cand, skin=skin, max_hops=max_hops)
+
+  return one(pos, half, active, movable) if pos.ndim == 2 else jax.vmap(one)(pos, half, active, movable)

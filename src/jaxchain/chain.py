@@ -161,3 +161,35 @@ def _overlap_at(ref_pos: jax.Array, half: jax.Array, c: geometry.Contacts,
   o_axis = jnp.where(on_y, o[..., 1], o[..., 0])
   o_other = jnp.where(on_y, o[..., 0], o[..., 1])
   return jnp.where(c.link & (o_other > 0), jnp.maximum(o_axis, 0.0), 0.0)
+
+
+def longest_chain(pos: jax.Array, half: jax.Array, movable: jax.Array, cand: Candidates, *,
+                  skin: float, max_hops: int) -> jax.Array:
+  """Links in the longest chain of touching or overlapping bodies (a wall at the end
+  counts as a link), along any direction, up to `max_hops`. Used on the host to pick
+  a chain depth; not differentiable (a `while_loop` that stops when nothing changes).
+
+  Args:
+    pos, half: `[n, 2]`.
+    movable: `[n]` bool; immovable bodies end chains.
+    cand: candidate table.
+    skin, max_hops: static.
+
+  Returns:
+    int32 scalar.
+  """
+  c = geometry.contacts(pos, half, cand, skin)
+  dirs = jnp.arange(geometry.NUM_DIRECTIONS, dtype=c.direction.dtype)[:, None, None]
+  front = c.link[None] & (c.direction[None] == dirs) & movable[None, :, None]  # [4, n, m]
+  carries = cand.gather(movable[None].astype(jnp.int32)) > 0  # [1, n, m]: j passes pushes on.
+
+  def hop(state):
+    length, _, k = state
+    ahead = jnp.where(carries, cand.gather(length), 0)
+    new = jnp.max(jnp.where(front, 1 + ahead, 0), axis=-1, initial=0)
+    return new, jnp.any(new != length), k + 1
+
+  length = jnp.zeros(front.shape[:2], jnp.int32)
+  length, _, _ = lax.while_loop(lambda s: s[1] & (s[2] < max_hops), hop,
+                                (length, jnp.array(True), jnp.array(0)))
+  return jnp.max(length, initial=0)

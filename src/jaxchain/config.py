@@ -159,8 +159,10 @@ class Config:
     """A config that leaves out what `world` does not use.
 
     Looks at the (host) world, or a padded batch of worlds, and switches off:
-    immovable-body handling when no active body is immovable, and chain depth
-    beyond the number of movable bodies (no chain can be longer), and substeps
+    immovable-body handling when no active body is immovable; chain depth beyond
+    what the scene can use: `min(movable bodies, max(8, 2 * longest chain))`, where
+    the longest chain is measured over the bodies touching now (a stack of 20 gets
+    20, a room of loose boxes 8, two boxes 2); and substeps
     beyond what the current speeds need to keep every body from moving, in one
     substep, its own half-extent plus the thinnest body's (the tunnelling limit;
     see `status.FAST_BODY`; later speed-ups are not foreseen). Gravity and
@@ -184,8 +186,8 @@ class Config:
     has_immovable = bool(np.any(active & (inv_mass == 0)))
     derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps")
     base = cls(**{k: v for k, v in overrides.items() if k not in derived_keys})
-    derived = dict(depth=min(cls.depth, max(n_movable, 1)), immovable=has_immovable,
-                   substeps=_substeps_for(world, base.dt))
+    derived = dict(depth=_depth_for(world, base.skin, n_movable), immovable=has_immovable,
+                   substeps=_substeps_for(world, base.dt, base.gravity))
     broadphase = overrides.get("broadphase", "auto")
     if broadphase in ("auto", "grid") and "grid" not in overrides:
       from jaxchain import broadphase as bp  # Import here: broadphase imports config.
@@ -200,14 +202,29 @@ class Config:
     return base.replace(**derived)
 
 
-def _substeps_for(world, dt: float, safety: float = 1.25) -> int:
+def _substeps_for(world, dt: float, gravity=(0.0, 0.0), safety: float = 1.25) -> int:
   """Fewest substeps with `|v| dt / substeps < (half + thinnest half) / safety` for
-  every active body and axis, at the world's current velocities."""
+  every active body and axis, at the world's current velocities plus one step of
+  gravity."""
   active = np.asarray(world.active)
   if not active.any():
     return 1
   half = np.asarray(world.half, np.float64)
-  speed = np.abs(np.asarray(world.vel, np.float64))
+  speed = np.abs(np.asarray(world.vel, np.float64)) + np.abs(np.asarray(gravity)) * dt
   thinnest = np.min(half[active], axis=0)
   ratio = np.where(active[..., None], speed * dt * safety / (half + thinnest), 0.0)
   return max(1, int(np.ceil(np.max(ratio))))
+
+
+def _depth_for(world, skin: float, n_movable: int) -> int:
+  """`min(n_movable, max(Config.depth, 2 * longest chain now))`, at least 1."""
+  cap = max(n_movable, 1)
+  if cap <= Config.depth:
+    return cap
+  from jaxchain import broadphase  # Here: broadphase imports this module.
+  n = world.pos.shape[-2]
+  spec = broadphase.allocate(world, skin) if n > DENSE_MAX_BODIES else None
+  movable = world.active & (world.inv_mass > 0)
+  found = np.asarray(broadphase.longest_chain(world.pos, world.half, world.active, movable,
+                                              spec=spec, skin=skin, max_hops=cap))
+  return min(cap, max(Config.depth, 2 * int(np.max(found, initial=0))))
