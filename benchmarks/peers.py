@@ -17,10 +17,12 @@ Scenes, built once as host arrays and fed to every engine in this process:
 All boxes have fixed rotation in every engine (Box2D `fixedRotation`, pymunk
 infinite moment, Jax2D zero inverse inertia): jaxchain boxes stay axis-aligned,
 and penetration is measured from centres and half-extents. Engines that do not
-import are skipped with a message. Writes `results/peers.md`.
+import are skipped with a message (`pip install -e .[peers]` installs them). Before
+timing, waits (up to `--wait` s) until no other benchmark or pytest runs, and says
+in the output whether it got a quiet machine. Writes `results/peers.md`.
 
-    python benchmarks/peers.py            # full run, about 7 minutes on 2 cores
-    python benchmarks/peers.py --quick    # N in (16, 64), smaller batches
+    python benchmarks/peers.py            # full run, about 2.5 minutes on 2 cores
+    python benchmarks/peers.py --quick    # N in (16, 64), batches of 64 only
 """
 
 from __future__ import annotations
@@ -320,14 +322,14 @@ class Jax2D:
 
 
 def run_jitted(fn, arg, repeats: int):
-  """`(result as numpy, median seconds, compile seconds)` of a jitted `fn(arg)`."""
+  """`(result as numpy arrays, median seconds, compile seconds)` of a jitted `fn(arg)`."""
   t0 = time.perf_counter()
   compiled = jax.jit(fn).lower(arg).compile()
   compile_s = time.perf_counter() - t0
   # No separate warm-up: the median of repeats drops a slow first call, and a run
   # long enough to stop after one call hides the first-call overhead.
   out, sec = median_time(lambda: jax.block_until_ready(compiled(arg)), repeats)
-  return np.asarray(out), sec, compile_s
+  return jax.tree.map(np.asarray, out), sec, compile_s
 
 
 class JaxChain:
@@ -366,20 +368,9 @@ class JaxChain:
 
     if batch > 1:
       world, roll = jc.stack([world] * batch), jax.vmap(roll)
-    (out, code), sec, compile_s = run_jitted_pair(roll, world, repeats)
+    (out, code), sec, compile_s = run_jitted(roll, world, repeats)
     self.status = int(np.bitwise_or.reduce(np.ravel(code)))
     return (out[0] if batch > 1 else out), sec, compile_s
-
-
-def run_jitted_pair(fn, arg, repeats: int):
-  """`run_jitted` for a function returning a pair of arrays."""
-  t0 = time.perf_counter()
-  compiled = jax.jit(fn).lower(arg).compile()
-  compile_s = time.perf_counter() - t0
-  # No separate warm-up: the median of repeats drops a slow first call, and a run
-  # long enough to stop after one call hides the first-call overhead.
-  out, sec = median_time(lambda: jax.block_until_ready(compiled(arg)), repeats)
-  return tuple(np.asarray(x) for x in out), sec, compile_s
 
 
 def status_names(code: int) -> str:
