@@ -62,12 +62,10 @@ def check_messages(world) -> set[str]:
   return {m.split(": ", 1)[1] for m in jc.check(world)}
 
 
-def _penetrations(world, pos):
+@jax.jit
+def penetrations(world, pos):
+  """`[t]` largest penetration after each step of a trajectory `pos [t, n, 2]`."""
   return jax.lax.map(lambda p: metrics.max_penetration(world.replace(pos=p)), pos, batch_size=100)
-
-
-penetrations = jax.jit(_penetrations)
-"""`[t]` largest penetration after each step of a trajectory `pos [t, n, 2]`."""
 
 
 def energy(mass: np.ndarray, pos: np.ndarray, vel: np.ndarray, g: float) -> np.ndarray:
@@ -158,21 +156,28 @@ def table(first: str, rows: list[tuple[str, dict]]) -> list[str]:
 # --- Cases ---------------------------------------------------------------------------
 
 
+def depth_configs(world: jc.World, height: int, **overrides) -> list[tuple[jc.Config, str]]:
+  """The config `Config.for_world` picks and, if its depth is below `height` (the
+  longest chain the case builds), also one with `depth=height`, labelled."""
+  cfg = jc.Config.for_world(world, **overrides)
+  out = [(cfg, "for_world")]
+  if cfg.depth < height:
+    out.append((jc.Config.for_world(world, depth=height, **overrides), "override"))
+  return out
+
+
 def mass_ratio_cases(steps: int, bar) -> list[tuple[str, dict]]:
   """Stacks of 20 with alternating masses 1 and `ratio`, friction 0.5, at the depth
-  `Config.for_world` picks and at depth 20 (one pass resolves the whole stack)."""
+  `Config.for_world` picks (and at depth 20 if that is less)."""
   rows = []
   for ratio in RATIOS:
     masses = np.where(np.arange(20) % 2 == 0, 1.0, ratio)
     world = scenes.stack(20, overlaps=0.0, masses=masses).world()
-    for depth in (None, 20):
-      extra = {} if depth is None else dict(depth=depth)
-      cfg = jc.Config.for_world(world, friction=0.5, **extra)
+    for cfg, label in depth_configs(world, 20, friction=0.5):
       r = run_case(world, cfg, steps)
-      label = "for_world" if depth is None else "override"
-      r.update(label=label)
+      r.update(label=label, height=20)
       rows.append((f"{ratio:g} | {cfg.depth} ({label}) | {r['drift']:.3g}", r))
-      bar.update()
+    bar.update()
   return rows
 
 
@@ -180,6 +185,7 @@ def tall_stack_case(steps: int, bar) -> list[tuple[str, dict]]:
   """A stack of 100 unit boxes on a floor, depth 100, friction 0.5."""
   world = scenes.stack(100, overlaps=0.0).world()
   r = run_case(world, jc.Config.for_world(world, friction=0.5, depth=100), steps)
+  r.update(label="override", height=100)
   bar.update()
   return [(f"100 | {r['depth']} | {r['drift']:.3g}", r)]
 
@@ -197,22 +203,20 @@ def chain_world(length: int = 256) -> tuple[jc.World, float]:
 
 def chain_cases(steps: int, bar) -> list[tuple[str, dict]]:
   """The player pushed at +20 along +x into 256 boxes against a wall, gravity, a floor,
-  friction 0.3; at the depth `Config.for_world` picks and at depth 256."""
+  friction 0.3; at the depth `Config.for_world` picks (and at 257, the player and
+  every box, if that is less)."""
   world, face = chain_world(256)
   controls = np.zeros((world.num_bodies, 2), np.float32)
   controls[0, 0] = 20.0
   rows = []
-  for depth in (None, 256):
-    extra = {} if depth is None else dict(depth=depth)
-    cfg = jc.Config.for_world(world, friction=0.3, **extra)
+  for cfg, label in depth_configs(world, 257, friction=0.3):
     r = run_case(world, cfg, steps, controls, driven=True)
     right = np.asarray(r["traj"].pos)[:, 1:257, 0] + 0.5
     intrusion = float(np.max(right - face))
     moved = float(np.max(np.abs(np.asarray(r["final"].pos)[1:257] - np.asarray(world.pos)[1:257])))
-    label = "for_world" if depth is None else "override"
-    r.update(intrusion=intrusion, label=label)
+    r.update(intrusion=intrusion, label=label, height=257)
     rows.append((f"{cfg.depth} ({label}) | {cfg.broadphase} | {intrusion:.3g} | {moved:.3g}", r))
-    bar.update()
+  bar.update()
   return rows
 
 
@@ -225,24 +229,22 @@ def far_case(steps: int, bar) -> tuple[list[tuple[str, dict]], float]:
   world = jc.World.create(pos, half, np.r_[INF, np.ones(5)])
   r = run_case(world, jc.Config.for_world(world, friction=0.3), steps)
   bar.update()
-  lead = f"5 x 1e-3 at (1e4, 1e4) | {r['pen_max'] / ulp:.2f} | {r['drift'] / ulp:.2f}"
+  lead = f"5 x 1e-3 at (1e4, 1e4) | {r['substeps']} | {r['pen_max'] / ulp:.2f} | {r['drift'] / ulp:.2f}"
   return [(lead, r)], ulp
 
 
 def dt_cases(steps: int, bar) -> list[tuple[str, dict]]:
-  """A resting stack of 10, friction 0.5, for each dt; at the `for_world` depth and
-  at depth 10."""
+  """A resting stack of 10, friction 0.5, for each dt; at the `for_world` depth (and
+  at depth 10 if that is less)."""
   world = scenes.stack(10, overlaps=0.0).world()
   rows = []
   for dt in DTS:
-    for depth in (None, 10):
-      extra = {} if depth is None else dict(depth=depth)
-      cfg = jc.Config.for_world(world, friction=0.5, dt=dt, **extra)
+    for cfg, label in depth_configs(world, 10, friction=0.5, dt=dt):
       r = run_case(world, cfg, steps)
-      label = "for_world" if depth is None else "override"
-      r.update(label=label)
-      rows.append((f"{dt:.4g} | {cfg.depth} ({label}) | {steps * dt:.3g} | {r['drift']:.3g}", r))
-      bar.update()
+      r.update(label=label, height=10)
+      rows.append((f"{dt:.4g} | {cfg.depth} ({label}) | {cfg.substeps} | {steps * dt:.3g} | "
+                   f"{r['drift']:.3g}", r))
+    bar.update()
   return rows
 
 
@@ -314,7 +316,8 @@ def soak(batch: int, steps: int, seed: int = 0) -> dict:
     intrusion, wall_pair = jnp.max(walls, -1), jnp.argmax(walls, -1)  # [C]
     mov = w.movable[None, :, None]
     speed = jnp.max(jnp.where(mov, jnp.abs(traj.vel), 0.0), axis=(1, 2))  # [C]
-    out = (traj.pos < jnp.asarray(lo - ROOM_TOL, traj.pos.dtype)) | (traj.pos > jnp.asarray(hi + ROOM_TOL, traj.pos.dtype))
+    low, high = (jnp.asarray(x, traj.pos.dtype) for x in (lo - ROOM_TOL, hi + ROOM_TOL))
+    out = (traj.pos < low) | (traj.pos > high)
     left = jnp.any(jnp.any(out, -1) & w.movable[None], axis=0)  # [n]
     finite = jnp.all(jnp.isfinite(traj.pos)) & jnp.all(jnp.isfinite(traj.vel))
     still = (w.active & ~w.movable)[None, :, None]
@@ -379,14 +382,15 @@ def soak(batch: int, steps: int, seed: int = 0) -> dict:
       compile_s=compile_s, run_s=run_s, world_steps_per_s=batch * steps / run_s,
       pen_max=float(np.nanmax(pen)), pen_worst=(int(worst[0]), int(worst[1])), worst_pair=worst_pair,
       bound_at_worst=float(travel[worst]), worst_ratio=worst_ratio,
-      intrusion_max=float(np.nanmax(intrusion)), intrusion_at=intrusion_at, intrusion_final=float(np.nanmax(intrusion[:, -1])),
+      intrusion_max=float(np.nanmax(intrusion)), intrusion_at=intrusion_at,
+      intrusion_final=float(np.nanmax(intrusion[:, -1])),
       pen_p999=float(np.nanpercentile(pen, 99.9)), pen_p99=float(np.nanpercentile(pen, 99)),
       pen_median=float(np.nanmedian(pen)), pen_final=float(np.nanmax(pen[:, -1])),
       over_1e3=int(np.sum(pen > 1e-3)), over_travel=int(np.sum(pen > travel + 1e-6)),
       travel_max=float(travel.max()), speed_max=float(np.nanmax(speed)),
       left=int(left.sum()), left_worlds=int(left.any(1).sum()), non_finite=int(non_finite.sum()),
       immovable_moved=immovable_moved, codes=codes, messages=check_messages(world),
-      pen_per_step=np.nanmax(pen, axis=0), travel_per_step=np.max(travel, axis=0),
+      pen_all=pen.ravel(), ratio_all=ratio.ravel(),
       lo=lo, hi=hi)
 
 
@@ -412,7 +416,7 @@ def main():
   soak_batch, soak_steps = (8, 2000) if args.quick else (64, 10_000)
   t_start = time.perf_counter()
   groups = {}
-  n_runs = len(RATIOS) * 2 + 1 + 2 + 1 + len(DTS) * 2 + len(SPEEDS) * 2
+  n_runs = len(RATIOS) + 1 + 1 + 1 + len(DTS) + len(SPEEDS) * 2
   with tqdm(total=n_runs, desc="cases", unit="run", file=sys.stderr) as bar:
     groups["ratio"] = mass_ratio_cases(2000, bar)
     groups["tall"] = tall_stack_case(2000, bar)
@@ -444,7 +448,7 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> No
       "`dE - bound <= 1e-4 (1 + |E|)` at every step (the tests' float tolerance). *drift*: "
       "largest displacement of a movable body from its start at the end. *status*: the "
       "status bits set at the end (sticky), decoded below the tables with `jc.check`. "
-      "Compile time is apart from run time. dt = 1/60 s unless stated.",
+      "Steps are counted from 0. Compile time is apart from run time. dt = 1/60 s unless stated.",
       "",
       "## 1. Mass ratios: stacks of 20, masses alternating 1 and the ratio, friction 0.5, 2000 steps",
       "",
@@ -468,15 +472,16 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> No
       f"and its position is rounded to whole ulps (the initial overlaps are rounding, and cannot "
       f"be resolved below an ulp).{far_note(groups['far'][0][1])}",
       ""]
-  lines += table("scene | max pen in ulps | drift in ulps", groups["far"])
+  lines += table("scene | substeps | max pen in ulps | drift in ulps", groups["far"])
   lines += ["", "## 5. dt sweep: a resting stack of 10, friction 0.5, 2000 steps each", ""]
-  lines += table("dt | depth | simulated s | drift", groups["dt"])
+  lines += table("dt | depth | substeps | simulated s | drift", groups["dt"])
   lines += [
       "", "## 6. Tunnelling: a unit box fired at a wall 0.1 thick, no gravity, 60 steps", "",
       "The box starts at x=0, the wall's centre is at x=3.05 (faces at 3.0 and 3.1). A body "
       "cannot tunnel while it moves, per substep, less than its half-extent plus the thinnest "
       "body's: `|v| * dt / substeps < half_box + half_wall = 0.5 + 0.05 = 0.55`. "
-      "`Config.for_world` picks substeps from the initial speed with a 1.25 safety factor. "
+      "`Config.for_world` picks substeps from the initial speeds (plus one step of gravity, "
+      "none here) with a 1.25 safety factor. "
       "*passed*: the final centre x is beyond the wall's centre. Max x <= 2.5 means stopped at "
       "the wall. A box that tunnels is pushed out on the far side of the wall, and the "
       "velocity update adds that push to its speed (*final speed* above the launch speed): "
@@ -525,6 +530,11 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> No
       f"| compile s | {s['compile_s']:.2f} |",
       f"| run s | {s['run_s']:.2f} |",
       f"| world-steps/s (with the per-step checks) | {s['world_steps_per_s']:.3g} |",
+      "",
+      "Share of world-steps above a penetration (left) and above a multiple of the travel "
+      "bound (right):",
+      "",
+      "![soak penetration distribution](stability.png)",
   ]
   messages = set()
   for group in groups.values():
@@ -552,10 +562,11 @@ def far_note(r: dict) -> str:
 def bounds_paragraph(groups: dict, ulp: float, s: dict) -> str:
   """The observed bounds, in words."""
   rows = [r for g in groups.values() for _, r in g]
-  exact = [r for g in ("ratio", "dt") for _, r in groups[g] if r["label"] == "override"]
-  exact.append(groups["tall"][0][1])
-  short = [r for g in ("ratio", "dt") for _, r in groups[g] if r["label"] == "for_world"]
+  stacks = [r for g in ("ratio", "tall", "dt") for _, r in groups[g]]
+  exact = [r for r in stacks if r["depth"] >= r["height"]]
+  short = [r for r in stacks if r["depth"] < r["height"]]
   short_bad = [r for r in short if r["status"] & status.DEPTH_EXHAUSTED]
+  picked = sorted({r["depth"] for g in ("ratio", "chain", "dt") for _, r in groups[g] if r["label"] == "for_world"})
   undriven = [r for r in rows if not r["driven"]]
   energy_bad = [r for r in undriven if not r["energy_ok"]]
   chain = {r["depth"]: r["intrusion"] for _, r in groups["chain"]}
@@ -568,26 +579,27 @@ def bounds_paragraph(groups: dict, ulp: float, s: dict) -> str:
       f"Over {len(rows)} case runs and the soak: "
       f"non-finite state in {sum(r['non_finite'] for r in rows) + s['non_finite']}; immovable bodies "
       f"moved by at most {max([r['immovable_moved'] for r in rows] + [s['immovable_moved']]):.3g}.",
-      f"Stacks with depth at least their height (20, 10 and 100 high, every mass ratio and dt) "
-      f"kept penetration at most {max(r['pen_max'] for r in exact):.3g} and drifted at most "
-      f"{max(r['drift'] for r in exact):.3g}.",
-      f"At the depth `Config.for_world` picks (8, below the stack height) {len(short_bad)} of "
-      f"{len(short)} stack runs set DEPTH_EXHAUSTED and kept up to "
-      f"{max(r['pen_max'] for r in short):.3g} of penetration: reported, not hidden."
+      f"`Config.for_world` picked depths {', '.join(map(str, picked))} for the stacks of 20 and 10 "
+      f"and the chain of 256.",
+      f"Stacks with depth at least their height ({len(exact)} runs: 20, 10 and 100 high, every "
+      f"mass ratio and dt) kept penetration at most {max(r['pen_max'] for r in exact):.3g} and "
+      f"drifted at most {max(r['drift'] for r in exact):.3g}." if exact else "",
+      f"With depth below the stack height {len(short_bad)} of {len(short)} stack runs set "
+      f"DEPTH_EXHAUSTED and kept up to {max(r['pen_max'] for r in short):.3g} of penetration."
       if short else "",
       f"Energy never grew beyond lifting the previous step's penetration in any undriven run"
       if not energy_bad else
       f"**Energy grew beyond the bound in {len(energy_bad)} undriven runs**, "
-      f"{sum(bool(r['status'] & status.FAST_BODY) for r in energy_bad)} of them flagged FAST_BODY "
-      f"(see the tables)",
-      f"(largest dE - bound {max(r['excess_max'] for r in undriven):.3g}).",
+      f"{sum(bool(r['status'] & status.FAST_BODY) for r in energy_bad)} of them flagged FAST_BODY",
+      f"(largest dE - bound {max(r['excess_max'] for r in undriven):.3g}; see the tables).",
       "The chain of 256 entered the wall by at most "
       + " and ".join(f"{v:.3g} at depth {k}" for k, v in sorted(chain.items(), reverse=True)) + ".",
       f"Tiny boxes at 1e4 in float32 stayed within {far['pen_max'] / ulp:.2f} ulps of penetration.",
       f"Tunnelling: with `for_world` substeps the box "
       f"{'passed through at speeds ' + ', '.join(through_sub) if through_sub else 'never passed through'}; "
       f"with one substep it {'passed through at speeds ' + ', '.join(through_one) if through_one else 'never did'}"
-      f"{'; every run over the speed limit set FAST_BODY' if flagged else '; FAST_BODY was NOT set on every run over the limit'}.",
+      + ("; every run over the speed limit set FAST_BODY." if flagged
+         else "; FAST_BODY was NOT set on every run over the limit."),
       f"Soak ({s['batch']} x {s['steps']} world-steps): worst penetration {s['pen_max']:.3g} "
       f"(into the floor, ceiling or walls {s['intrusion_max']:.3g}), "
       f"{s['over_travel']} world-steps over the one-step travel bound (at most "
@@ -598,19 +610,24 @@ def bounds_paragraph(groups: dict, ulp: float, s: dict) -> str:
 
 
 def plot(s: dict) -> None:
+  """Soak: the share of world-steps whose penetration (left) and penetration over the
+  one-step travel bound (right) exceed a value."""
   import matplotlib
   matplotlib.use("Agg")
   import matplotlib.pyplot as plt
-  fig, ax = plt.subplots(figsize=(7, 4.5))
-  steps = np.arange(1, len(s["pen_per_step"]) + 1)
-  ax.plot(steps, s["pen_per_step"], lw=0.6, label="max penetration over worlds")
-  ax.plot(steps, s["travel_per_step"], lw=0.6, alpha=0.7, label="one-step travel bound")
-  ax.set_yscale("symlog", linthresh=1e-6)
-  ax.set_xlabel("step")
-  ax.set_ylabel("penetration")
-  ax.set_title(f"jaxchain soak: platformer, {s['batch']} worlds, random pushes")
-  ax.grid(True, which="both", alpha=0.3)
-  ax.legend()
+  fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+  for ax, values, label in ((axes[0], s["pen_all"], "penetration after a step"),
+                            (axes[1], s["ratio_all"], "penetration / one-step travel bound")):
+    v = np.sort(values[np.isfinite(values) & (values > 0)])
+    share = (len(v) - np.arange(len(v))) / len(values)  # Share of all world-steps >= v[k].
+    ax.step(v, share, where="post")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(label)
+    ax.grid(True, which="both", alpha=0.3)
+  axes[1].axvline(1.0, color="k", lw=0.8, ls="--")
+  axes[0].set_ylabel("share of world-steps above")
+  fig.suptitle(f"jaxchain soak: platformer, {s['batch']} worlds x {s['steps']} steps, random pushes")
   fig.tight_layout()
   fig.savefig(RESULTS / "stability.png", dpi=120)
 
