@@ -89,7 +89,6 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
     skin: link tolerance (static).
     track_immovable: trace the "leans on something immovable" flag (static);
       `False` is only correct when no linked body is immovable.
-
     ref_pos: optional `[n, 2]` motion-free reference positions.
 
   Returns:
@@ -139,13 +138,14 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   # 4. Forward push, K + 1 hops of max-plus along each direction.
   movable = ~immovable
 
-  def push_hop(_, disp):
+  def push_hop(disp, share):
     pushed = jnp.where(back[None], cand.gather(disp) + share[:, None], 0.0)
     return jnp.where(movable[None, None], jnp.max(pushed, axis=-1, initial=0.0), 0.0)
 
   disp = jnp.zeros((depths.shape[0],) + front.shape[:2], pos.dtype)
-  disp = lax.fori_loop(0, depth + 1, push_hop, disp)
-  push_short = jnp.any(push_hop(0, disp) != disp)
+  disp = lax.fori_loop(0, depth + 1, lambda _, x: push_hop(x, share), disp)
+  # Reporting only: the position channel alone decides whether a push was cut short.
+  push_short = jnp.any(push_hop(disp[:1], share[:1]) != disp[:1])
   exhausted = lax.stop_gradient(backing_short | push_short)
   net = jnp.stack([disp[:, 0] - disp[:, 1], disp[:, 2] - disp[:, 3]], axis=-1)  # [k, n, 2]
   return Pass(net[0], net[1] if ref_pos is not None else None, exhausted)
@@ -157,9 +157,7 @@ def _overlap_at(ref_pos: jax.Array, half: jax.Array, c: geometry.Contacts,
   pair's current contact axis (0 where the pair does not overlap there)."""
   o = geometry.overlap(ref_pos[:, None, :], half[:, None, :], cand.gather_bodies(ref_pos),
                        cand.gather_bodies(half))
-  on_y = c.direction >= 2
-  o_axis = jnp.where(on_y, o[..., 1], o[..., 0])
-  o_other = jnp.where(on_y, o[..., 0], o[..., 1])
+  o_axis, o_other = geometry.along_axis(o, c.direction >= 2)
   return jnp.where(c.link & (o_other > 0), jnp.maximum(o_axis, 0.0), 0.0)
 
 

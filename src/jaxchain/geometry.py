@@ -41,6 +41,11 @@ def overlap(pos_a, half_a, pos_b, half_b):
   return half_a + half_b - jnp.abs(pos_b - pos_a)
 
 
+def along_axis(o: jax.Array, use_y: jax.Array) -> tuple[jax.Array, jax.Array]:
+  """Splits per-axis values `[..., 2]` into (along the contact axis, along the other)."""
+  return jnp.where(use_y, o[..., 1], o[..., 0]), jnp.where(use_y, o[..., 0], o[..., 1])
+
+
 def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float) -> Contacts:
   """Contacts of every candidate pair.
 
@@ -60,9 +65,8 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float) -> 
   delta = pos_j - pos[:, None, :]
   o = overlap(pos[:, None, :], half[:, None, :], pos_j, half_j)
   use_y = o[..., 1] < o[..., 0]
-  o_axis = jnp.where(use_y, o[..., 1], o[..., 0])
-  o_other = jnp.where(use_y, o[..., 0], o[..., 1])
-  d_axis = jnp.where(use_y, delta[..., 1], delta[..., 0])
+  o_axis, o_other = along_axis(o, use_y)
+  d_axis, _ = along_axis(delta, use_y)
   self_idx = jnp.arange(n, dtype=jnp.int32)[:, None]
   positive = (d_axis > 0) | ((d_axis == 0) & (cand.partner_index() > self_idx))
   link = cand.mask & (o_other > 0) & (o_axis >= -skin)
