@@ -251,11 +251,11 @@ def allocate(world, skin: float = 1e-4, *, headroom: float = 2.0, max_cells: int
 
 
 @functools.partial(jax.jit, static_argnames=("spec", "skin", "max_hops"))
-def longest_chain(pos, half, active, movable, *, spec: GridSpec | None, skin: float,
-                  max_hops: int) -> jax.Array:
-  """Links in the longest chain of touching bodies per world (`chain.longest_chain`),
-  for a single world or a batch (leading axis); dense pairs, or the grid with `spec`.
-  Jitted once per shape and static arguments."""
+def measure(pos, half, active, movable, *, spec: GridSpec | None, skin: float,
+            max_hops: int) -> tuple[jax.Array, jax.Array]:
+  """Longest chain of touching bodies and most links per body and direction, per
+  world (`chain.measure`), for a single world or a batch (leading axis); dense
+  pairs, or the grid with `spec`. Jitted once per shape and static arguments."""
   from jaxchain import chain  # chain imports this module.
 
   def one(pos, half, active, movable):
@@ -263,6 +263,6 @@ def longest_chain(pos, half, active, movable, *, spec: GridSpec | None, skin: fl
       cand = dense(active)
     else:
       cand, _ = grid(pos, half, active, movable, spec, skin)
-    return chain.longest_chain(pos, half, movable, cand, skin=skin, max_hops=max_hops)
+    return chain.measure(pos, half, movable, cand, skin=skin, max_hops=max_hops)
 
   return one(pos, half, active, movable) if pos.ndim == 2 else jax.vmap(one)(pos, half, active, movable)

@@ -14,6 +14,10 @@ BROADPHASES = ("auto", "dense", "grid")
 # grid is faster from N=256; batches of 16 worlds, from N=512 (equal at 256).
 DENSE_MAX_BODIES = 256
 
+# `for_world` keeps at least this many links per body and direction (two unit boxes
+# side by side under a third is 2; an overlapping crowd may have 3).
+MIN_LINKS = 4
+
 
 @dataclasses.dataclass(frozen=True)
 class GridSpec:
@@ -92,6 +96,11 @@ class Config:
       `False` the "leans on something immovable" flag is not traced at all; only
       set it when no active body has infinite mass.
     grid: the grid layout (`GridSpec`), from `broadphase.allocate` or `for_world`.
+    links: most links kept per body and direction, or None for all candidates.
+      Chain hops walk a `[4, n, links]` table instead of the `[4, n, m]` candidate
+      table, so a small value makes each hop much cheaper; a body with more links
+      in one direction (a wide box on many small ones) sets `status.LINK_OVERFLOW`
+      and the extra links are ignored. `for_world` sizes it from the scene.
   """
 
   dt: float = 1 / 60
@@ -104,6 +113,7 @@ class Config:
   skin: float = 1e-4
   immovable: bool = True
   grid: GridSpec | None = None
+  links: int | None = None
 
   def __post_init__(self):
     g = tuple(float(x) for x in np.asarray(self.gravity, dtype=float).reshape(-1))
@@ -126,6 +136,11 @@ class Config:
       if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
         raise ValueError(f"Config.{name}: expected an integer >= {lo}, got {v!r}")
       object.__setattr__(self, name, int(v))
+    if self.links is not None and (isinstance(self.links, bool) or
+                                   not isinstance(self.links, (int, np.integer)) or self.links < 1):
+      raise ValueError(f"Config.links: expected None or an integer >= 1, got {self.links!r}")
+    if self.links is not None:
+      object.__setattr__(self, "links", int(self.links))
     if self.broadphase not in BROADPHASES:
       raise ValueError(f"Config.broadphase: expected one of {BROADPHASES}, got {self.broadphase!r}")
     if not isinstance(self.immovable, bool):
@@ -171,7 +186,9 @@ class Config:
     dense pairs up to `DENSE_MAX_BODIES` body slots, else the grid, sized by
     `broadphase.allocate` from this world, unless the scene is so crowded that a
     grid row would hold over a quarter of the bodies (then dense is cheaper).
-    Explicit `overrides` always win.
+    The link table keeps `max(MIN_LINKS, 2 * most links any movable body has in
+    one direction now)` per body and direction (None when that is not below the
+    candidate row: nothing to save). Explicit `overrides` always win.
 
     Examples:
       >>> import jaxchain as jc
@@ -180,24 +197,34 @@ class Config:
       >>> cfg.immovable, cfg.depth, cfg.has_gravity
       (False, 2, False)
     """
+    from jaxchain import broadphase as bp  # Import here: broadphase imports config.
     active = np.asarray(world.active)
     inv_mass = np.asarray(world.inv_mass)
+    n = int(world.pos.shape[-2])
     n_movable = int(np.max(np.sum(active & (inv_mass > 0), axis=-1), initial=0))
-    has_immovable = bool(np.any(active & (inv_mass == 0)))
-    derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps")
+    derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps", "links")
     base = cls(**{k: v for k, v in overrides.items() if k not in derived_keys})
-    derived = dict(depth=_depth_for(world, base.skin, n_movable), immovable=has_immovable,
+    derived = dict(immovable=bool(np.any(active & (inv_mass == 0))),
                    substeps=_substeps_for(world, base.dt, base.gravity))
     broadphase = overrides.get("broadphase", "auto")
     if broadphase in ("auto", "grid") and "grid" not in overrides:
-      from jaxchain import broadphase as bp  # Import here: broadphase imports config.
-      n = int(world.pos.shape[-2])
       if broadphase == "grid" or n > DENSE_MAX_BODIES:
         spec = bp.allocate(world, base.skin)
         crowded = spec.row_size > n / 4
         derived.update(grid=spec, broadphase="dense" if crowded and broadphase == "auto" else "grid")
       else:
         derived.update(broadphase="dense")
+    chosen = base.replace(**{**derived, **{k: v for k, v in overrides.items() if k in derived_keys}})
+    uses_grid = chosen.uses_grid(n)
+    cap = max(n_movable, 1)
+    movable = world.active & (world.inv_mass > 0)
+    chain_found, links_found = bp.measure(world.pos, world.half, world.active, movable,
+                                          spec=chosen.grid if uses_grid else None,
+                                          skin=base.skin, max_hops=cap)
+    derived["depth"] = min(cap, max(Config.depth, 2 * int(np.max(chain_found, initial=0))))
+    row = chosen.grid.row_size if uses_grid else n
+    links = max(MIN_LINKS, 2 * int(np.max(links_found, initial=0)))
+    derived["links"] = links if links < row else None
     derived.update({k: v for k, v in overrides.items() if k in derived_keys})
     return base.replace(**derived)
 
@@ -214,17 +241,3 @@ def _substeps_for(world, dt: float, gravity=(0.0, 0.0), safety: float = 1.25) ->
   thinnest = np.min(half[active], axis=0)
   ratio = np.where(active[..., None], speed * dt * safety / (half + thinnest), 0.0)
   return max(1, int(np.ceil(np.max(ratio))))
-
-
-def _depth_for(world, skin: float, n_movable: int) -> int:
-  """`min(n_movable, max(Config.depth, 2 * longest chain now))`, at least 1."""
-  cap = max(n_movable, 1)
-  if cap <= Config.depth:
-    return cap
-  from jaxchain import broadphase  # Here: broadphase imports this module.
-  n = world.pos.shape[-2]
-  spec = broadphase.allocate(world, skin) if n > DENSE_MAX_BODIES else None
-  movable = world.active & (world.inv_mass > 0)
-  found = np.asarray(broadphase.longest_chain(world.pos, world.half, world.active, movable,
-                                              spec=spec, skin=skin, max_hops=cap))
-  return min(cap, max(Config.depth, 2 * int(np.max(found, initial=0))))

@@ -16,6 +16,7 @@ BODY_TOO_LARGE = 1 << 2
 NON_FINITE = 1 << 3
 DEPTH_EXHAUSTED = 1 << 4
 FAST_BODY = 1 << 5
+LINK_OVERFLOW = 1 << 6
 
 MESSAGES = {
     CELL_OVERFLOW: "a grid cell held more movable bodies than Config.grid.cell_capacity; "
@@ -32,6 +33,9 @@ MESSAGES = {
                      "penetration may be left (raise depth or iterations)",
     FAST_BODY: "a body moved farther in one substep than it and the thinnest body are thick, "
                "so it may have passed through something (raise Config.substeps)",
+    LINK_OVERFLOW: "a body had more links in one direction than Config.links keeps; the "
+                   "extra ones were ignored in that pass (raise links, set it to None, or "
+                   "re-run Config.for_world on the current world)",
 }
 
 

@@ -56,7 +56,7 @@ def _resolve_positions(world: World, pos: jax.Array, config: Config,
   mass = chain.body_mass(world.inv_mass, world.active)
   immovable = ~world.movable
   pass_fn = functools.partial(chain.displacement, half=world.half, mass=mass, immovable=immovable,
-                              depth=config.depth, skin=config.skin,
+                              depth=config.depth, skin=config.skin, links=config.links,
                               track_immovable=config.immovable)
 
   def one_pass(_, carry):
@@ -65,6 +65,7 @@ def _resolve_positions(world: World, pos: jax.Array, config: Config,
     out = pass_fn(p, cand=cand, ref_pos=None if start is None else ref)
     if start is not None:
       ref, motion = ref + (out.disp - out.caused), motion + out.caused
+    found = found | jnp.where(out.overflow, status.LINK_OVERFLOW, 0)
     return p + out.disp, ref, motion, code | found, out.exhausted
 
   ref = pos if start is None else start
