@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 import jaxchain as jc
 from jaxchain import broadphase, geometry, scenes, status
-from tests.helpers import TOL
+from tests.helpers import TOL, mixed_room as room
 
 N = 32  # Every scene is padded to this: one compile per config.
 SKIN = 1e-4
@@ -18,20 +18,6 @@ SPEC = jc.GridSpec(origin=(-2.0, -2.0), cell=1.0 + SKIN, shape=(16, 16), reach=0
                    cell_capacity=8, static_capacity=8, static_entries=512)
 GRID = jc.Config(gravity=(0.0, 0.0), depth=6, iterations=2, broadphase="grid", grid=SPEC)
 DENSE = GRID.replace(broadphase="dense")
-
-
-def room(seed, n_boxes=20, n_tiles=3):
-  """A 10 x 10 room: long floor, ceiling and walls, a few immovable tiles, and
-  overlapping movable boxes of mixed sizes (half-extents 0.1 to 0.5)."""
-  rng = np.random.default_rng(seed)
-  pos = [[5.0, -0.5], [5.0, 10.5], [-0.5, 5.0], [10.5, 5.0]]
-  half = [[6.0, 0.5], [6.0, 0.5], [0.5, 5.0], [0.5, 5.0]]
-  pos += rng.uniform(1, 9, (n_tiles, 2)).tolist()
-  half += rng.uniform(0.2, 1.5, (n_tiles, 2)).tolist()  # Tiles may be larger than a cell.
-  pos += rng.uniform(0.3, 9.7, (n_boxes, 2)).tolist()
-  half += rng.uniform(0.1, 0.5, (n_boxes, 2)).tolist()
-  mass = np.r_[np.full(4 + n_tiles, np.inf), rng.uniform(0.5, 2.0, n_boxes)]
-  return scenes.Scene(np.asarray(pos), np.asarray(half), mass)
 
 
 grid_fn = jax.jit(broadphase.grid, static_argnames=("spec", "skin"))

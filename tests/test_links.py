@@ -1,0 +1,114 @@
+"""Compact link tables: the same answers as the full candidate table, overflow never silent."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from jax.test_util import check_grads
+
+import jaxchain as jc
+from jaxchain import broadphase, geometry, scenes, status
+from tests.helpers import TOL, mixed_room
+
+N = 32  # Every room is padded to this: one compile per config.
+SPEC = jc.GridSpec(origin=(-2.0, -2.0), cell=1.0 + 1e-4, shape=(16, 16), reach=0.5,
+                   cell_capacity=8, static_capacity=8, static_entries=512)
+FULL = jc.Config(gravity=(0.0, 0.0), depth=6, iterations=2)
+COMPACT = {"dense": FULL.replace(links=4),
+           "grid": FULL.replace(links=4, broadphase="grid", grid=SPEC)}
+
+first_set = jax.jit(geometry._first_set, static_argnames="limit")
+measure = jax.jit(jax.vmap(lambda w: broadphase.measure(
+    w.pos, w.half, w.active, w.movable, spec=None, skin=1e-4, max_hops=N)[1]))
+
+
+@pytest.mark.parametrize("m, limit", [(5, 3), (24, 2), (25, 4), (48, 4), (70, 6)])
+@given(seed=st.integers(0, 2**31 - 1))
+def test_first_set_finds_the_first_entries_of_each_row(m, limit, seed):
+  # Word boundaries (24 bits a word) at 24, 25 and 48; rows from empty to full.
+  rng = np.random.default_rng(seed)
+  sel = rng.random((4, 6, m)) < rng.uniform(0, 1, (4, 6, 1))
+  slot, valid, overflow = map(np.asarray, first_set(jnp.asarray(sel), limit=limit))
+  for row in np.ndindex(4, 6):
+    want = np.flatnonzero(sel[row])[:limit]
+    np.testing.assert_array_equal(slot[row][valid[row]], want)
+    assert not valid[row][len(want):].any() and (slot[row][~valid[row]] == 0).all()
+  assert bool(overflow) == bool((sel.sum(-1) > limit).any())
+
+
+@pytest.mark.parametrize("broadphase_name", ["dense", "grid"])
+@given(seed=st.integers(0, 2**31 - 1))
+def test_compact_links_resolve_like_the_full_table(broadphase_name, seed):
+  world = mixed_room(seed).world().pad(N)
+  compact = jc.resolve(world, COMPACT[broadphase_name])
+  full = jc.resolve(world, FULL)
+  overflowed = bool(compact.status & status.LINK_OVERFLOW)
+  # The first pass sees the input: more than 4 links there must be reported.
+  assert overflowed or int(measure(jc.stack([world]))[0]) <= 4
+  if not overflowed:
+    np.testing.assert_allclose(compact.pos, full.pos, **TOL["transform"])
+    assert int(compact.status) == int(full.status)
+
+
+def test_compact_rollout_with_gravity_and_friction_matches_the_full_table():
+  world = scenes.platformer(np.random.default_rng(3)).scene.world()
+  cfg = jc.Config.for_world(world, friction=0.4)
+  assert cfg.links == 4  # The demo scene is compacted.
+  final, traj = jc.rollout(world, cfg, 90, controls=jnp.zeros_like(world.pos).at[4, 0].set(20.0))
+  full, full_traj = jc.rollout(world, cfg.replace(links=None), 90,
+                               controls=jnp.zeros_like(world.pos).at[4, 0].set(20.0))
+  np.testing.assert_allclose(traj.pos, full_traj.pos, **TOL["transform"])
+  assert int(final.status) == int(full.status) == 0
+
+
+def plank_on_boxes(boxes=6):
+  """A movable plank resting, slightly sunk, on `boxes` unit boxes on a floor."""
+  pos = [[0.0, -0.5], [boxes / 2, 1.45]] + [[0.5 + k, 0.5] for k in range(boxes)]
+  half = [[50.0, 0.5], [boxes / 2, 0.5]] + [[0.5, 0.5]] * boxes
+  return scenes.Scene(np.asarray(pos), np.asarray(half), np.r_[np.inf, 1.0, np.ones(boxes)])
+
+
+def test_too_many_links_are_reported_not_silently_dropped():
+  world = plank_on_boxes(6).world()
+  cfg = jc.Config(gravity=(0.0, 0.0), depth=4)
+  short = jc.resolve(world, cfg.replace(links=4))
+  assert short.status & status.LINK_OVERFLOW
+  assert any("Config.links" in line for line in jc.check(short))
+  exact = jc.resolve(world, cfg)
+  assert int(exact.status) == 0
+  enough = jc.resolve(world, cfg.replace(links=6))
+  assert int(enough.status) == 0
+  np.testing.assert_allclose(enough.pos, exact.pos, **TOL["transform"])
+  np.testing.assert_allclose(exact.pos[1, 1], 1.5, **TOL["exact_f32"])  # Plank lifted out.
+
+
+def test_for_world_sizes_the_link_table_from_the_scene():
+  assert jc.Config.for_world(scenes.platformer().scene.world()).links == jc.config.MIN_LINKS
+  plank = plank_on_boxes(6)  # The plank has 6 links down: twice that is the whole row.
+  assert jc.Config.for_world(plank.world()).links is None
+  loose = scenes.random_boxes(np.random.default_rng(0), 10, extent=40.0)
+  loose = loose._replace(pos=loose.pos + 100.0)  # Well away from the plank and the floor.
+  wide = scenes.Scene(*(np.concatenate([a, b]) for a, b in zip(plank, loose)))
+  assert jc.Config.for_world(wide.world()).links == 12
+  assert jc.Config.for_world(wide.world(), links=3).links == 3  # Overrides win.
+
+
+def test_compact_links_have_finite_difference_gradients():
+  scene = scenes.push_chain(4, overlap=0.3, wall=False, masses=[1.0, 2.0, 0.5, 1.0, 3.0],
+                            overlaps=[0.1, 0.2, 0.15])
+  world = scene.world()
+  cfg = jc.Config(depth=4, gravity=(0.0, 0.0), links=2)
+
+  def f(pos, half):
+    return jc.resolve(world.replace(pos=pos, half=half), cfg).pos
+
+  check_grads(f, (world.pos, world.half), order=1, modes=["rev", "fwd"], eps=1e-2,
+              atol=2e-2, rtol=2e-2)
+
+
+@pytest.mark.parametrize("links", [0, -1, 2.5, True])
+def test_bad_links_raise_a_clear_error(links):
+  with pytest.raises(ValueError, match="Config.links: expected None or an integer >= 1"):
+    jc.Config(links=links)
