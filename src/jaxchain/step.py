@@ -118,7 +118,8 @@ def _substep(world: World, config: Config, h: float, accel: jax.Array | None) ->
   moved = vel + push / h
   vel = jnp.where(vel * moved < 0, 0.0, moved)
   if config.has_friction:
-    vel = _friction(world, resolved, vel, push, config, h)
+    vel, friction_code = _friction(world, resolved, vel, push, config, h)
+    code = code | friction_code
   bad = world.active[:, None] & ~(jnp.isfinite(resolved) & jnp.isfinite(vel))
   code = code | jnp.where(jnp.any(bad), status.NON_FINITE, 0)
   return world.replace(pos=resolved, vel=vel, status=world.status | code)
@@ -133,7 +134,7 @@ def _too_fast(world: World, vel: jax.Array, h: float) -> jax.Array:
   return jnp.any(world.active[:, None] & (jnp.abs(vel) * h >= reach))
 
 
-def _friction(world: World, pos, vel, push, config: Config, h: float) -> jax.Array:
+def _friction(world: World, pos, vel, push, config: Config, h: float):
   """Coulomb friction, Jacobi style, per body.
 
   The normal impulse of body i along an axis is taken as its own resolution
@@ -141,20 +142,29 @@ def _friction(world: World, pos, vel, push, config: Config, h: float) -> jax.Arr
   along the other (tangent) axis, relative to the mean tangent velocity of the
   bodies it is linked to along the normal axis, by at most `mu` times that. A box
   sliding at `v0` on a floor stops after about `v0**2 / (2 mu g)`.
+
+  Returns:
+    `(vel, code)`: the new velocities and `LINK_OVERFLOW` if the link table at the
+    resolved positions overflowed (the grid's bits were taken by the resolution).
   """
-  cand, _ = broadphase.candidates(pos, world, config)  # Status already taken by the resolution.
+  cand, _ = broadphase.candidates(pos, world, config)
   c = geometry.contacts(pos, world.half, cand, config.skin)
-  normal_is_y = c.direction >= 2  # [n, m]
+  links, overflow = geometry.link_table(c, cand, config.links, rows=world.movable)
+  partner_vel = links.gather_bodies(vel)  # [4, n, l, 2] ([1, n, m, 2] uncompacted)
   out = []
   for tangent in (0, 1):  # A loop over the two axes, not over bodies.
-    along_normal = c.link & (normal_is_y if tangent == 0 else ~normal_is_y)
-    count = jnp.sum(along_normal, axis=-1)
-    ref = chain.safe_divide(jnp.sum(jnp.where(along_normal, cand.gather_bodies(vel[:, tangent]), 0.0), -1),
+    normal = slice(2, 4) if tangent == 0 else slice(0, 2)  # Directions along the normal axis.
+    along_normal = links.mask[normal]  # [2, n, l]
+    v = partner_vel[..., tangent]
+    v = v[normal] if v.shape[0] > 1 else v
+    count = jnp.sum(along_normal, axis=(0, 2))
+    ref = chain.safe_divide(jnp.sum(jnp.where(along_normal, v, 0.0), axis=(0, 2)),
                             count.astype(vel.dtype))
     rel = vel[:, tangent] - ref
     budget = config.friction * jnp.abs(push[:, 1 - tangent]) / h
     out.append(vel[:, tangent] - jnp.sign(rel) * jnp.minimum(jnp.abs(rel), budget))
-  return jnp.where(world.movable[:, None], jnp.stack(out, axis=-1), vel)
+  vel = jnp.where(world.movable[:, None], jnp.stack(out, axis=-1), vel)
+  return vel, jnp.where(overflow, status.LINK_OVERFLOW, 0)
 
 
 def _step(world: World, config: Config, accel: jax.Array | None) -> World:

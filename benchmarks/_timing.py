@@ -1,0 +1,48 @@
+"""Timing shared by the benchmark scripts: compile apart, median of repeats."""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import time
+
+import jax
+import numpy as np
+
+
+def median_time(fn, repeats: int, budget_s: float = float("inf")):
+  """`(last result, median seconds)` of `fn()` over up to `repeats` calls; stops
+  early once the calls so far took `budget_s` (one long call is enough)."""
+  times, out = [], None
+  for _ in range(repeats):
+    t0 = time.perf_counter()
+    out = fn()
+    times.append(time.perf_counter() - t0)
+    if sum(times) >= budget_s:
+      break
+  return out, statistics.median(times)
+
+
+def compile_and_time(fn, *args, repeats: int = 5, budget_s: float = float("inf"),
+                     warmup: bool = True):
+  """`(result, median seconds per call, compile seconds)` of `jax.jit(fn)(*args)`.
+
+  Compiles ahead of time (`lower(...).compile()`), so compile time is measured on
+  its own and never counted in the run time. With `warmup`, one untimed call first.
+  """
+  t0 = time.perf_counter()
+  compiled = jax.jit(fn).lower(*args).compile()
+  compile_s = time.perf_counter() - t0
+  if warmup:
+    jax.block_until_ready(compiled(*args))
+  out, sec = median_time(lambda: jax.block_until_ready(compiled(*args)), repeats, budget_s)
+  return out, sec, compile_s
+
+
+def machine() -> str:
+  """One line naming what the numbers were measured on."""
+  load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+  return (f"jax {jax.__version__} on {jax.devices()[0].device_kind}, {os.cpu_count()} cores, "
+          f"{platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}, "
+          f"1-min load average at the start {load:.2f}")
