@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import pathlib
-import statistics
 import time
 
 import jax
@@ -37,6 +36,7 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import metrics, reference, scenes
+from _bench import compile_and_time, machine, median_time
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 DEPTHS = (0, 1, 2, 4, 8, 16, 32, 64)
@@ -120,25 +120,13 @@ def score(scene, pos, want, start) -> dict:
 
 
 def time_jax(world_batch, cfg, repeats) -> tuple[float, np.ndarray]:
-  fn = jax.jit(jax.vmap(lambda w: jc.step(w, cfg)))
-  compiled = fn.lower(world_batch).compile()
-  out = compiled(world_batch)
-  jax.block_until_ready(out)
-  ts = []
-  for _ in range(repeats):
-    t0 = time.perf_counter()
-    jax.block_until_ready(compiled(world_batch))
-    ts.append(time.perf_counter() - t0)
-  return statistics.median(ts) / world_batch.pos.shape[0], np.asarray(out.pos[0], np.float64)
+  out, sec, _ = compile_and_time(jax.vmap(lambda w: jc.step(w, cfg)), world_batch, repeats=repeats)
+  return sec / world_batch.pos.shape[0], np.asarray(out.pos[0], np.float64)
 
 
 def time_old(scene, sweeps, repeats) -> tuple[float, np.ndarray]:
-  ts, out = [], None
-  for _ in range(repeats):
-    t0 = time.perf_counter()
-    out = reference.resolve_old(scene.pos, scene.half, scene.mass, sweeps=sweeps)
-    ts.append(time.perf_counter() - t0)
-  return statistics.median(ts), out
+  return median_time(lambda: reference.resolve_old(scene.pos, scene.half, scene.mass, sweeps=sweeps),
+                     repeats)[::-1]
 
 
 def main():
@@ -196,7 +184,7 @@ def write(rows, args) -> None:
   cmd = "python benchmarks/error_vs_time.py" + (" --quick" if args.quick else "")
   lines = [
       "# Error against run time", "",
-      f"`{cmd}` on {jax.devices()[0].device_kind}, jax {jax.__version__}, batch {args.batch}. "
+      f"`{cmd}`, {machine()}; batch {args.batch}. "
       "One step with zero gravity and velocity (pure overlap resolution), time per world-step "
       "under jit + vmap, compile excluded. Error = max(residual penetration, distance to the "
       "reference). `*` marks the Pareto front (nothing both faster and more accurate). The old "

@@ -44,6 +44,7 @@ import numpy as np
 from tqdm import tqdm
 
 import jaxchain as jc
+from _bench import compile_and_time
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 INF = np.inf
@@ -57,6 +58,7 @@ PUSH_SPEED = 2.0
 PUSH_GAP = 2.0
 TAIL_PEN = 300  # Penetration is measured over the last this many push-chain steps.
 TAIL_JITTER = 30  # Jitter is the std of x over the last this many steps.
+BUDGET_S = 3.0  # A timing stops repeating once its calls took this long.
 BATCH_STEPS = 30  # Batched jaxchain rollouts (its work per step does not depend on the state).
 BUSY = r"benchmarks/(stability|specialisation|error_vs_time|throughput)\.py|pytest"
 JAX2D_MAX_N = 64  # Jax2D builds its all-pairs index lists in a Python loop; see `Jax2D`.
@@ -151,19 +153,6 @@ def push_metrics(traj: np.ndarray, scene: Scene) -> dict:
 # where a scene with a player drives it at PUSH_SPEED along +x every step.
 
 
-def median_time(fn, repeats: int, budget_s: float = 3.0):
-  """`(last result, median seconds)` of `fn()` over up to `repeats` calls; stops
-  early once the calls so far took `budget_s` (one long call is enough)."""
-  times, out = [], None
-  for _ in range(repeats):
-    t0 = time.perf_counter()
-    out = fn()
-    times.append(time.perf_counter() - t0)
-    if sum(times) >= budget_s:
-      break
-  return out, statistics.median(times)
-
-
 class Box2D:
   """pybox2d (Box2D 2.3): b2World, polygon boxes, 8 velocity / 3 position iterations."""
 
@@ -208,7 +197,7 @@ class Box2D:
     return run_python(once, repeats)
 
 
-def run_python(once, repeats: int, budget_s: float = 3.0):
+def run_python(once, repeats: int, budget_s: float = BUDGET_S):
   """`(result, median seconds, 0.0)` over up to `repeats` calls of `once() -> (result,
   seconds)` (each builds a fresh world, timed without the build)."""
   runs = []
@@ -322,13 +311,10 @@ class Jax2D:
 
 
 def run_jitted(fn, arg, repeats: int):
-  """`(result as numpy arrays, median seconds, compile seconds)` of a jitted `fn(arg)`."""
-  t0 = time.perf_counter()
-  compiled = jax.jit(fn).lower(arg).compile()
-  compile_s = time.perf_counter() - t0
-  # No separate warm-up: the median of repeats drops a slow first call, and a run
-  # long enough to stop after one call hides the first-call overhead.
-  out, sec = median_time(lambda: jax.block_until_ready(compiled(arg)), repeats)
+  """`(result as numpy arrays, median seconds, compile seconds)` of a jitted `fn(arg)`.
+  No separate warm-up: the median of repeats drops a slow first call, and a run long
+  enough to stop after one call hides the first-call overhead."""
+  out, sec, compile_s = compile_and_time(fn, arg, repeats=repeats, budget_s=BUDGET_S, warmup=False)
   return jax.tree.map(np.asarray, out), sec, compile_s
 
 

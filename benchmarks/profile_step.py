@@ -26,7 +26,7 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import broadphase, geometry, scenes
-from _timing import compile_and_time, machine
+from _bench import compile_and_time, machine
 from peers import room
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"

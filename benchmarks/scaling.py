@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import argparse
 import pathlib
-import statistics
-import time
 
 import jax
 import numpy as np
@@ -23,6 +21,7 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import broadphase, scenes
+from _bench import compile_and_time, loglog, machine
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 STEPS = 10
@@ -36,18 +35,9 @@ def time_setting(n: int, batch: int, kind: str, repeats: int) -> dict:
     cfg = base.replace(broadphase="grid", grid=broadphase.allocate(worlds))
   else:
     cfg = base.replace(broadphase="dense")
-  run = jax.jit(jax.vmap(lambda w: jc.rollout(w, cfg, STEPS)[0]))
-  t0 = time.perf_counter()
-  compiled = run.lower(worlds).compile()
-  compile_s = time.perf_counter() - t0
-  out = compiled(worlds)
-  jax.block_until_ready(out)
-  times = []
-  for _ in range(repeats):
-    t0 = time.perf_counter()
-    jax.block_until_ready(compiled(worlds))
-    times.append(time.perf_counter() - t0)
-  step_s = statistics.median(times) / STEPS
+  out, sec, compile_s = compile_and_time(jax.vmap(lambda w: jc.rollout(w, cfg, STEPS)[0]), worlds,
+                                         repeats=repeats)
+  step_s = sec / STEPS
   return dict(n=n, batch=batch, kind=kind, compile_s=compile_s, step_s=step_s,
               body_step_s=step_s / (n * batch), status=int(np.max(np.asarray(out.status))),
               row=cfg.grid.row_size if cfg.grid else n)
@@ -70,11 +60,10 @@ def main():
 
 def write(rows: list[dict]) -> None:
   RESULTS.mkdir(exist_ok=True)
-  device = jax.devices()[0].device_kind
   lines = [
       "# Grid against dense: time per step over bodies per world",
       "",
-      f"`python benchmarks/scaling.py` on {device}, jax {jax.__version__}. Scene: `scenes.box_room` "
+      f"`python benchmarks/scaling.py`, {machine()}. Scene: `scenes.box_room` "
       "(constant density, long floor/ceiling/walls), gravity, friction 0.3, depth 4, 1 iteration. "
       f"Median of repeats of a jitted, vmapped {STEPS}-step rollout, compile excluded.",
       "",
@@ -101,25 +90,14 @@ def write(rows: list[dict]) -> None:
 
 
 def plot(rows: list[dict]) -> None:
-  import matplotlib
-  matplotlib.use("Agg")
-  import matplotlib.pyplot as plt
-  fig, ax = plt.subplots(figsize=(7, 4.5))
+  series = {}
   for kind, style in (("grid", "-o"), ("dense", "--s")):
     for b in sorted({r["batch"] for r in rows}):
       sel = [r for r in rows if r["kind"] == kind and r["batch"] == b]
       if sel:
-        ax.plot([r["n"] for r in sel], [r["body_step_s"] * 1e9 for r in sel], style,
-                label=f"{kind}, B={b}")
-  ax.set_xscale("log", base=2)
-  ax.set_yscale("log")
-  ax.set_xlabel("bodies per world N")
-  ax.set_ylabel("ns per body-step")
-  ax.set_title("jaxchain: time per body-step (flat = O(N))")
-  ax.grid(True, which="both", alpha=0.3)
-  ax.legend()
-  fig.tight_layout()
-  fig.savefig(RESULTS / "scaling.png", dpi=120)
+        series[f"{kind}, B={b}"] = ([r["n"] for r in sel], [r["body_step_s"] * 1e9 for r in sel], style)
+  loglog(RESULTS / "scaling.png", series, xlabel="bodies per world N", ylabel="ns per body-step",
+         title="jaxchain: time per body-step (flat = O(N))", xbase=2)
 
 
 if __name__ == "__main__":

@@ -121,12 +121,20 @@ class Platformer(NamedTuple):
 
 
 def platformer(rng: np.random.Generator | None = None, row_length: int = 4,
-               stack_height: int = 5) -> Platformer:
+               stack_height: int = 5, stacked: int | None = None) -> Platformer:
   """A closed room: floor, ceiling and walls (immovable), a player on the left,
-  a row of boxes on the floor to push toward the right wall, and a stack of boxes.
+  a row of boxes on the floor to push toward the right wall, and stacked boxes
+  behind the player.
 
   With `rng`, box masses are drawn from `[0.5, 2]` (a different world per draw).
+  `stacked` boxes (default `stack_height`) stand in columns of `stack_height`,
+  1.5 apart, leftwards from the player; the room widens to the left to hold them.
+  `platformer_level(n)` sizes it to `n` bodies.
   """
+  stacked = stack_height if stacked is None else stacked
+  columns = max(1, -(-stacked // stack_height))
+  left = -10.0 - 1.5 * (columns - 1)  # Inner face of the left wall.
+  centre, width = (left + 10.0) / 2, (10.0 - left) / 2
   pos, half, mass = [], [], []
 
   def add(p, h, m):
@@ -135,17 +143,25 @@ def platformer(rng: np.random.Generator | None = None, row_length: int = 4,
     mass.append(m)
     return len(pos) - 1
 
-  add([0.0, -0.5], [12.0, 0.5], INF)  # floor, top at y = 0
-  add([0.0, 13.5], [11.0, 0.5], INF)  # ceiling
-  add([-10.5, 6.5], [0.5, 6.5], INF)  # left wall, inner face at x = -10
+  add([centre, -0.5], [width + 2.0, 0.5], INF)  # floor, top at y = 0
+  add([centre, 13.5], [width + 1.0, 0.5], INF)  # ceiling
+  add([left - 0.5, 6.5], [0.5, 6.5], INF)  # left wall
   wall = add([10.5, 6.5], [0.5, 6.5], INF)  # right wall, inner face at x = 10
   player = add([-6.0, 0.6], [0.4, 0.6], 1.0)
   draw = (lambda: float(rng.uniform(0.5, 2.0))) if rng is not None else (lambda: 1.0)
   row = [add([4.5 + k, 0.5], [0.5, 0.5], draw()) for k in range(row_length)]
-  for k in range(stack_height):
-    add([-8.5, 0.5 + k], [0.5, 0.5], draw())  # behind the player
+  for k in range(stacked):
+    add([-8.5 - 1.5 * (k // stack_height), 0.5 + k % stack_height], [0.5, 0.5], draw())
   scene = Scene(np.asarray(pos, float), np.asarray(half, float), np.asarray(mass, float))
   return Platformer(scene, player, np.asarray(row), wall, 10.0)
+
+
+def platformer_level(n: int, rng: np.random.Generator | None = None) -> Platformer:
+  """The demo scene grown (or shrunk) to `n` bodies, `n >= 9`: the same room, player
+  and row of 4, with `n - 9` boxes stacked in columns of 5 behind the player."""
+  if n < 9:
+    raise ValueError(f"platformer_level: need at least 9 bodies (room, player, row), got {n}")
+  return platformer(rng, stacked=n - 9)
 
 
 def box_room(rng: np.random.Generator, n: int, density: float = 0.35) -> Scene:

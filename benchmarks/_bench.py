@@ -1,4 +1,5 @@
-"""Timing shared by the benchmark scripts: compile apart, median of repeats."""
+"""Shared by the benchmark scripts: timing (compile apart, median of repeats), the
+machine line every result file starts with, and the log-log plot."""
 
 from __future__ import annotations
 
@@ -46,3 +47,23 @@ def machine() -> str:
   return (f"jax {jax.__version__} on {jax.devices()[0].device_kind}, {os.cpu_count()} cores, "
           f"{platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}, "
           f"1-min load average at the start {load:.2f}")
+
+
+def loglog(path, series, *, xlabel: str, ylabel: str, title: str, xbase: int = 10) -> None:
+  """Writes a log-log PNG of `series`: label -> `(xs, ys, matplotlib style)`."""
+  import matplotlib
+  matplotlib.use("Agg")
+  import matplotlib.pyplot as plt
+  fig, ax = plt.subplots(figsize=(7, 4.5))
+  for label, (xs, ys, style) in series.items():
+    ax.plot(xs, ys, style, label=label)
+  ax.set_xscale("log", base=xbase)
+  ax.set_yscale("log")
+  ax.set_xlabel(xlabel)
+  ax.set_ylabel(ylabel)
+  ax.set_title(title)
+  ax.grid(True, which="both", alpha=0.3)
+  ax.legend()
+  fig.tight_layout()
+  fig.savefig(path, dpi=120)
+  plt.close(fig)
