@@ -11,8 +11,8 @@ scored:
   - movement of immovable bodies (must be exactly 0).
 Settings: chain depth K in (0, 1, 2, 4, 8, 16, 32, 64) x iterations in (1, 2, 4, 8,
 16, 32) at 1 substep (skipping (K + 1) * iterations > 300), and substeps (1, 2, 4) at
-K=8. K=0 is plain pairwise Jacobi
-(no chain propagation). The seed's old sequential pairwise system (NumPy, one world
+K=8, each with the link table `Config.for_world` sizes for the scene. K=0 is plain
+pairwise Jacobi (no chain propagation). The seed's old sequential pairwise system (NumPy, one world
 at a time, 1 to 32 sweeps) is the order-dependent baseline, timed per world.
 
 Writes `results/error_vs_time.md` (a table per scene family) and
@@ -145,9 +145,10 @@ def main():
       want = reference.resolve(scene.pos, scene.half, scene.mass) if has_ref else None
       batch = jc.stack([scene.world()] * args.batch)
       as_f32 = np.asarray(batch.pos[0], np.float64)
+      links = jc.Config.for_world(scene.world()).links  # The link table a user would get.
       for k, it, sub in plan:
         cfg = jc.Config(gravity=(0.0, 0.0), depth=k, iterations=it, substeps=sub,
-                        immovable=bool(np.isinf(scene.mass).any()))
+                        immovable=bool(np.isinf(scene.mass).any()), links=links)
         t, pos = time_jax(batch, cfg, args.repeats)
         method = "pairwise Jacobi (K=0)" if k == 0 else f"chain K={k}"
         if sub > 1:

@@ -20,7 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 import jaxchain as jc
-from jaxchain import broadphase, scenes
+from jaxchain import scenes
 from _bench import compile_and_time, loglog, machine
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
@@ -30,17 +30,14 @@ STEPS = 10
 def time_setting(n: int, batch: int, kind: str, repeats: int) -> dict:
   rng = np.random.default_rng(n)
   worlds = jc.stack([scenes.box_room(rng, n).world() for _ in range(batch)])
-  base = jc.Config(friction=0.3, depth=4)
-  if kind == "grid":
-    cfg = base.replace(broadphase="grid", grid=broadphase.allocate(worlds))
-  else:
-    cfg = base.replace(broadphase="dense")
+  # As a user gets it (link table sized from the scene), with the broadphase forced.
+  cfg = jc.Config.for_world(worlds, friction=0.3, depth=4, substeps=1, broadphase=kind)
   out, sec, compile_s = compile_and_time(jax.vmap(lambda w: jc.rollout(w, cfg, STEPS)[0]), worlds,
                                          repeats=repeats)
   step_s = sec / STEPS
   return dict(n=n, batch=batch, kind=kind, compile_s=compile_s, step_s=step_s,
               body_step_s=step_s / (n * batch), status=int(np.max(np.asarray(out.status))),
-              row=cfg.grid.row_size if cfg.grid else n)
+              row=cfg.grid.row_size if kind == "grid" else n, links=cfg.links)
 
 
 def main():
@@ -64,16 +61,17 @@ def write(rows: list[dict]) -> None:
       "# Grid against dense: time per step over bodies per world",
       "",
       f"`python benchmarks/scaling.py`, {machine()}. Scene: `scenes.box_room` "
-      "(constant density, long floor/ceiling/walls), gravity, friction 0.3, depth 4, 1 iteration. "
+      "(constant density, long floor/ceiling/walls), gravity, friction 0.3, depth 4, 1 iteration, "
+      "`Config.for_world` for the rest (the link table). "
       f"Median of repeats of a jitted, vmapped {STEPS}-step rollout, compile excluded.",
       "",
-      "| broadphase | worlds B | bodies N | row size M | compile s | ms / step | ns / body-step | per-body vs N=64 | status |",
-      "|---|---|---|---|---|---|---|---|---|",
+      "| broadphase | worlds B | bodies N | row size M | links | compile s | ms / step | ns / body-step | per-body vs N=64 | status |",
+      "|---|---|---|---|---|---|---|---|---|---|",
   ]
   for r in rows:
     first = next(x for x in rows if x["kind"] == r["kind"] and x["batch"] == r["batch"])
     lines.append(
-        f"| {r['kind']} | {r['batch']} | {r['n']} | {r['row']} | {r['compile_s']:.2f} | "
+        f"| {r['kind']} | {r['batch']} | {r['n']} | {r['row']} | {r['links']} | {r['compile_s']:.2f} | "
         f"{r['step_s'] * 1e3:.3f} | {r['body_step_s'] * 1e9:.0f} | "
         f"{r['body_step_s'] / first['body_step_s']:.2f}x | {r['status']} |")
   lines += ["", "Crossover (grid faster than dense), per batch size:", ""]

@@ -2,7 +2,9 @@
 
 One pass over a fixed candidate table (DESIGN.md section 3):
 
-1. contacts (`geometry.contacts`);
+1. contacts (`geometry.contacts`), sorted by direction into a `[4, n, l]` link
+   table (`geometry.link_table`; `l = Config.links`, or the candidate row), so
+   every hop below gathers only real links;
 2. backing, K hops: the mass of the unit behind each body in each direction,
    `M_d(i) = m_i + sum_{j in front of i along d} M_d(j)`, and a separate flag
    "leans on something immovable" `S_d(i)` (no inf arithmetic);

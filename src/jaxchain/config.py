@@ -10,9 +10,10 @@ import numpy as np
 BROADPHASES = ("auto", "dense", "grid")
 
 # Worlds with at most this many body slots use dense all-pairs candidates in
-# `for_world` and "auto". Measured (benchmarks/results/scaling.md): one world, the
-# grid is faster from N=256; batches of 16 worlds, from N=512 (equal at 256).
-DENSE_MAX_BODIES = 256
+# `for_world` and "auto". Measured with compact link tables
+# (benchmarks/results/scaling.md): dense is faster at N=128 and the grid at N=256,
+# for one world and for batches of 16; between the two it is not measured.
+DENSE_MAX_BODIES = 192
 
 # `for_world` keeps at least this many links per body and direction (two unit boxes
 # side by side under a third is 2; an overlapping crowd may have 3).
