@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import pathlib
+import statistics
 import time
 
 import jax
@@ -26,7 +27,7 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import broadphase, geometry, scenes
-from _bench import compile_and_time, machine
+from _bench import machine, median_time
 from peers import room
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
@@ -85,10 +86,19 @@ def main():
   tables = {}
   for name in tqdm(["room64", "platformer"], desc="scenes", unit="scene"):
     worlds, cfg = scene_worlds(name, args.batch)
-    rows = []
+    compiled = {}
     for stage, fn in stages(cfg).items():
-      _, sec, compile_s = compile_and_time(jax.vmap(fn), worlds, repeats=args.repeats)
-      rows.append((stage, sec, compile_s))
+      t0 = time.perf_counter()
+      compiled[stage] = jax.jit(jax.vmap(fn)).lower(worlds).compile()
+      compiled_s = time.perf_counter() - t0
+      jax.block_until_ready(compiled[stage](worlds))  # Warm-up.
+      compiled[stage] = (compiled[stage], compiled_s)
+    # Rounds interleave the stages, so slow drift in the machine hits them all alike.
+    times = {stage: [] for stage in compiled}
+    for _ in range(args.repeats):
+      for stage, (fn, _) in compiled.items():
+        times[stage].append(median_time(lambda: jax.block_until_ready(fn(worlds)), 1)[1])
+    rows = [(stage, statistics.median(times[stage]), compiled[stage][1]) for stage in compiled]
     tables[name] = (cfg, int(worlds.pos.shape[1]), rows)
   write(tables, args, header, time.perf_counter() - started)
 
@@ -99,7 +109,7 @@ def write(tables, args, header, wall_s) -> None:
       "",
       f"`python benchmarks/profile_step.py --batch {args.batch}`, {header}; {wall_s:.0f} s. "
       f"Each row: one jitted, vmapped call over {args.batch} identical settled worlds, "
-      f"median of {args.repeats}, compile excluded. Each row adds stages to the one before, "
+      f"median of {args.repeats} rounds that time every stage once in turn, compile excluded. Each row adds stages to the one before, "
       "so the difference is what a stage costs.",
   ]
   for name, (cfg, n, rows) in tables.items():
