@@ -38,6 +38,16 @@ def test_first_set_finds_the_first_entries_of_each_row(m, limit, seed):
   assert bool(overflow) == bool((sel.sum(-1) > limit).any())
 
 
+def test_first_set_under_jit_and_vmap_matches_one_world_at_a_time():
+  # The packing is a matrix product followed by reductions: the pattern jax 0.10.2
+  # miscompiles on CPU under vmap (jax-ml/jax#39103); batched must equal unbatched.
+  sel = jnp.asarray(np.random.default_rng(0).random((16, 4, 12, 30)) < 0.2)
+  batched = jax.jit(jax.vmap(lambda s: geometry._first_set(s, 3)))(sel)
+  for b in range(sel.shape[0]):
+    for got, want in zip(batched, first_set(sel[b], limit=3)):
+      np.testing.assert_array_equal(got[b], want)
+
+
 @pytest.mark.parametrize("broadphase_name", ["dense", "grid"])
 @given(seed=st.integers(0, 2**31 - 1))
 def test_compact_links_resolve_like_the_full_table(broadphase_name, seed):
