@@ -250,12 +250,13 @@ def allocate(world, skin: float = 1e-4, *, headroom: float = 2.0, max_cells: int
 
 
 
-@functools.partial(jax.jit, static_argnames=("spec", "skin", "max_hops"))
-def measure(pos, half, active, movable, *, spec: GridSpec | None, skin: float,
-            max_hops: int) -> tuple[jax.Array, jax.Array]:
-  """Longest chain of touching bodies and most links per body and direction, per
-  world (`chain.measure`), for a single world or a batch (leading axis); dense
-  pairs, or the grid with `spec`. Jitted once per shape and static arguments."""
+@functools.partial(jax.jit, static_argnames=("spec", "skin"))
+def measure(pos, half, active, movable, max_hops, *, spec: GridSpec | None,
+            skin: float) -> tuple[jax.Array, jax.Array]:
+  """Longest chain of touching bodies (up to the traced `max_hops`) and most links
+  per body and direction, per world (`chain.measure`), for a single world or a batch
+  (leading axis); dense pairs, or the grid with `spec`. Jitted once per shape and
+  static arguments."""
   from jaxchain import chain  # chain imports this module.
 
   def one(pos, half, active, movable):

@@ -4,7 +4,7 @@ One pass over a fixed candidate table (DESIGN.md section 3):
 
 1. contacts (`geometry.contacts`), sorted by direction into a `[4, n, l]` link
    table (`geometry.link_table`; `l = Config.links`, or the candidate row), so
-   every hop below gathers only real links;
+   with a compact table every hop below gathers only real links;
 2. backing, K hops: the mass of the unit behind each body in each direction,
    `M_d(i) = m_i + sum_{j in front of i along d} M_d(j)`, and a separate flag
    "leans on something immovable" `S_d(i)` (no inf arithmetic);
@@ -146,7 +146,7 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
 
   def push_hop(disp, share):
     pushed = jnp.where(back.mask, back.gather(disp) + share, 0.0)
-    return jnp.where(movable, jnp.max(pushed, axis=-1, initial=0.0), 0.0)
+    return jnp.where(movable[None, None], jnp.max(pushed, axis=-1, initial=0.0), 0.0)
 
   disp = jnp.zeros((depths.shape[0],) + unit_mass.shape, pos.dtype)
   disp = lax.fori_loop(0, depth + 1, lambda _, x: push_hop(x, share), disp)
@@ -167,7 +167,7 @@ def _overlap_at(ref_pos: jax.Array, half: jax.Array, links: geometry.Links) -> j
 
 
 def measure(pos: jax.Array, half: jax.Array, movable: jax.Array, cand: Candidates, *,
-            skin: float, max_hops: int) -> tuple[jax.Array, jax.Array]:
+            skin: float, max_hops: int | jax.Array) -> tuple[jax.Array, jax.Array]:
   """What a scene needs now: the links in its longest chain of touching or
   overlapping bodies (a wall at the end counts as a link, along any direction, up
   to `max_hops`) and the most links any movable body has in one direction. Used on
@@ -178,7 +178,8 @@ def measure(pos: jax.Array, half: jax.Array, movable: jax.Array, cand: Candidate
     pos, half: `[n, 2]`.
     movable: `[n]` bool; immovable bodies end chains.
     cand: candidate table.
-    skin, max_hops: static.
+    skin: static.
+    max_hops: int, may be traced (only the loop condition reads it).
 
   Returns:
     `(longest_chain, most_links)`, int32 scalars.
@@ -194,6 +195,6 @@ def measure(pos: jax.Array, half: jax.Array, movable: jax.Array, cand: Candidate
     return new, jnp.any(new != length), k + 1
 
   length = jnp.zeros(front.shape[:2], jnp.int32)
-  length, _, _ = lax.while_loop(lambda s: s[1] & (s[2] < max_hops), hop,
-                                (length, jnp.array(True), jnp.array(0)))
+  length, _, _ = lax.while_loop(lambda s: s[1] & (s[2] < jnp.int32(max_hops)), hop,
+                                (length, jnp.array(True), jnp.array(0, jnp.int32)))
   return jnp.max(length, initial=0), jnp.max(jnp.sum(front, axis=-1, dtype=jnp.int32), initial=0)

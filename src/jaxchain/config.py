@@ -101,7 +101,9 @@ class Config:
       Chain hops walk a `[4, n, links]` table instead of the `[4, n, m]` candidate
       table, so a small value makes each hop much cheaper; a body with more links
       in one direction (a wide box on many small ones) sets `status.LINK_OVERFLOW`
-      and the extra links are ignored. `for_world` sizes it from the scene.
+      and the extra links (the last by candidate order) are ignored, in the
+      resolution and in friction, which reads the same table. `for_world` sizes it
+      from the scene.
   """
 
   dt: float = 1 / 60
@@ -218,14 +220,15 @@ class Config:
     chosen = base.replace(**{**derived, **{k: v for k, v in overrides.items() if k in derived_keys}})
     uses_grid = chosen.uses_grid(n)
     cap = max(n_movable, 1)
-    movable = world.active & (world.inv_mass > 0)
-    chain_found, links_found = bp.measure(world.pos, world.half, world.active, movable,
-                                          spec=chosen.grid if uses_grid else None,
-                                          skin=base.skin, max_hops=cap)
-    derived["depth"] = min(cap, max(Config.depth, 2 * int(np.max(chain_found, initial=0))))
-    row = chosen.grid.row_size if uses_grid else n
-    links = max(MIN_LINKS, 2 * int(np.max(links_found, initial=0)))
-    derived["links"] = links if links < row else None
+    if not ("depth" in overrides and "links" in overrides):  # Else nothing to measure.
+      movable = world.active & (world.inv_mass > 0)
+      chain_found, links_found = bp.measure(world.pos, world.half, world.active, movable,
+                                            np.int32(cap), spec=chosen.grid if uses_grid else None,
+                                            skin=base.skin)
+      derived["depth"] = min(cap, max(Config.depth, 2 * int(np.max(chain_found, initial=0))))
+      row = chosen.grid.row_size if uses_grid else n
+      links = max(MIN_LINKS, 2 * int(np.max(links_found, initial=0)))
+      derived["links"] = links if links < row else None
     derived.update({k: v for k, v in overrides.items() if k in derived_keys})
     return base.replace(**derived)
 

@@ -132,11 +132,13 @@ def by_direction(c: Contacts, rows: jax.Array | None = None) -> jax.Array:
 
 def link_table(c: Contacts, cand: Candidates, limit: int | None,
                rows: jax.Array | None = None) -> tuple[Links, jax.Array]:
-  """Sorts the links of `c` by direction, keeping at most `limit` per body and direction.
+  """Selects the links of `c` by direction, keeping at most `limit` per body and direction.
 
   Compacting makes every chain hop cost `4 n limit` instead of `4 n m`. The first
   `limit` links by candidate slot are kept; more set the returned overflow flag
-  (`status.LINK_OVERFLOW`), never silently.
+  (`status.LINK_OVERFLOW`), never silently. Which links are dropped on overflow
+  depends on the candidate order (body order for dense pairs), and a dropped link
+  may still be kept in the partner's row: the answer is then not the exact one.
 
   Args:
     c: contacts over the candidate table.

@@ -34,7 +34,7 @@ MESSAGES = {
     FAST_BODY: "a body moved farther in one substep than it and the thinnest body are thick, "
                "so it may have passed through something (raise Config.substeps)",
     LINK_OVERFLOW: "a body had more links in one direction than Config.links keeps; the "
-                   "extra ones were ignored in that pass (raise links, set it to None, or "
+                   "extra ones were ignored in that pass or in friction (raise links, set it to None, or "
                    "re-run Config.for_world on the current world)",
 }
 

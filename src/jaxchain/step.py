@@ -156,7 +156,7 @@ def _friction(world: World, pos, vel, push, config: Config, h: float):
     normal = slice(2, 4) if tangent == 0 else slice(0, 2)  # Directions along the normal axis.
     along_normal = links.mask[normal]  # [2, n, l]
     v = partner_vel[..., tangent]
-    v = v[normal] if v.shape[0] > 1 else v
+    v = v[normal] if links.idx is not None else v  # Uncompacted: [1, n, m], shared.
     count = jnp.sum(along_normal, axis=(0, 2))
     ref = chain.safe_divide(jnp.sum(jnp.where(along_normal, v, 0.0), axis=(0, 2)),
                             count.astype(vel.dtype))
