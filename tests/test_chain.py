@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 import jaxchain as jc
 from jaxchain import reference, scenes
-from tests.helpers import CAPACITY, DEEP, TOL, pad_world, resolve_scene
+from tests.helpers import DEEP, TOL, pad_world, resolve_scene
 
 masses_st = st.floats(0.1, 10.0)
 overlap_st = st.floats(0.01, 0.4)
