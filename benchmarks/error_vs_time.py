@@ -152,11 +152,11 @@ def main():
   with tqdm(total=total, desc="error vs time", unit="setting") as bar:
     for name, (scene, has_ref) in fams.items():
       want = reference.resolve(scene.pos, scene.half, scene.mass) if has_ref else None
-      batch = jc.stack([scene.world()] * args.batch)
+      batch = jc.stack([scene.world(gravity=(0.0, 0.0))] * args.batch)
       as_f32 = np.asarray(batch.pos[0], np.float64)
       links = jc.Config.for_world(scene.world()).links  # The link table a user would get.
       for k, it, sub in plan:
-        cfg = jc.Config(gravity=(0.0, 0.0), depth=k, iterations=it, substeps=sub,
+        cfg = jc.Config(gravity=False, friction=False, depth=k, iterations=it, substeps=sub,
                         immovable=bool(np.isinf(scene.mass).any()), links=links)
         t, pos = time_jax(batch, cfg, args.repeats)
         method = "pairwise Jacobi (K=0)" if k == 0 else f"chain K={k}"

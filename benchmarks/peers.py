@@ -318,8 +318,15 @@ def run_jitted(fn, arg, repeats: int):
   return jax.tree.map(np.asarray, out), sec, compile_s
 
 
+def world_of(scene: Scene) -> jc.World:
+  """The scene as a jaxchain World with the shared friction and gravity."""
+  return jc.World.create(scene.pos, scene.half, scene.mass, friction=FRICTION,
+                         gravity=(0.0, GRAVITY))
+
+
 class JaxChain:
-  """jaxchain with `Config.for_world(world, friction=0.5)` (or explicit overrides)."""
+  """jaxchain with friction 0.5 on every body and `Config.for_world(world)` (or
+  explicit overrides)."""
 
   name = "jaxchain"
   jitted = True
@@ -331,11 +338,10 @@ class JaxChain:
     self.status = 0
 
   def config(self, world) -> jc.Config:
-    return jc.Config.for_world(world, friction=FRICTION, gravity=(0.0, GRAVITY), dt=DT,
-                               **self.overrides)
+    return jc.Config.for_world(world, dt=DT, **self.overrides)
 
   def run(self, scene: Scene, steps: int, record: bool, repeats: int = 1, batch: int = 1):
-    world = jc.World.create(scene.pos, scene.half, scene.mass)
+    world = world_of(scene)
     cfg = self.cfg = self.config(world)
     player = scene.player
 
@@ -407,7 +413,7 @@ def room_rows(sizes, batches, repeats, peers, notes) -> list[dict]:
   for n in sizes:
     settings.append(("jaxchain", n, 1, {}))
     if n == 64:
-      picked = JaxChain().config(jc.World.create(*_arrays(room(n)))).depth
+      picked = JaxChain().config(world_of(room(n))).depth
       if picked != 8:
         settings.append(("jaxchain", n, 1, dict(depth=8)))
       else:
@@ -438,10 +444,6 @@ def room_rows(sizes, batches, repeats, peers, notes) -> list[dict]:
     rows.append(dict(engine=name, n=n, batch=b, steps=steps, sec=sec, compile_s=comp,
                      rate=n * b * steps / sec, pen=pen, extra=extra))
   return rows
-
-
-def _arrays(scene: Scene):
-  return scene.pos, scene.half, scene.mass
 
 
 def push_rows(peers, repeats) -> list[dict]:

@@ -5,7 +5,7 @@ excluded, median of repeats): the broadphase and contacts alone, then with the l
 table, then the resolver at depth 0 without and with the motion channel, the full
 resolver, the step without friction and the full step. Differences between rows are
 the stages' costs. Scenes: the peers room (N unit boxes settled in a closed room,
-`Config.for_world(friction=0.5)`, as in `peers.py`) and the demo platformer.
+friction 0.5 on every body, `Config.for_world`, as in `peers.py`) and the demo platformer.
 Writes `results/profile.md`.
 
     python benchmarks/profile_step.py            # about 2 minutes on 2 cores
@@ -57,7 +57,7 @@ def stages(cfg: jc.Config) -> dict:
       "resolver, depth 0": lambda w: step_module._resolve_positions(w, w.pos, shallow, start=w.pos)[0],
       f"resolver, depth {cfg.depth}": lambda w: step_module._resolve_positions(
           w, w.pos, cfg, start=w.pos)[0],
-      "step without friction": lambda w: step_module._step(w, cfg.replace(friction=0.0), None).pos,
+      "step without friction": lambda w: step_module._step(w, cfg.replace(friction=False), None).pos,
       "step": lambda w: step_module._step(w, cfg, None).pos,
   }
 
@@ -66,12 +66,12 @@ def scene_worlds(name: str, batch: int) -> tuple[jc.World, jc.Config]:
   if name.startswith("room"):
     n = int(name[4:])
     s = room(n)
-    world = jc.World.create(s.pos, s.half, s.mass)
-    cfg = jc.Config.for_world(world, friction=0.5)
+    world = jc.World.create(s.pos, s.half, s.mass, friction=0.5)
+    cfg = jc.Config.for_world(world)
     world, _ = jc.rollout(world, cfg, 120)  # Settle: the boxes fall and stack.
   else:
-    world = scenes.platformer().scene.world()
-    cfg = jc.Config.for_world(world, friction=0.3)
+    world = scenes.platformer().scene.world(friction=0.3)
+    cfg = jc.Config.for_world(world)
     world, _ = jc.rollout(world, cfg, 60, controls=np.zeros((14, 2), np.float32))
   return jc.stack([world] * batch), cfg
 
@@ -119,7 +119,7 @@ def write(tables, args, header, wall_s) -> None:
         f"## {name}: {n} bodies, {args.batch} worlds",
         "",
         f"Config (`for_world`): depth {cfg.depth}, links {cfg.links}, {cfg.broadphase}, "
-        f"iterations {cfg.iterations}, substeps {cfg.substeps}, friction {cfg.friction}. "
+        f"iterations {cfg.iterations}, substeps {cfg.substeps}, friction {'on' if cfg.friction else 'off'}. "
         f"Full step: {step_s * 1e3:.1f} ms, {args.batch * n / step_s:.3g} body-steps/s.",
         "",
         "| stage | ms per step | added by this stage | share of the step | compile s |",

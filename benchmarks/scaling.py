@@ -29,9 +29,9 @@ STEPS = 10
 
 def time_setting(n: int, batch: int, kind: str, repeats: int) -> dict:
   rng = np.random.default_rng(n)
-  worlds = jc.stack([scenes.box_room(rng, n).world() for _ in range(batch)])
+  worlds = jc.stack([scenes.box_room(rng, n).world(friction=0.3) for _ in range(batch)])
   # As a user gets it (link table sized from the scene), with the broadphase forced.
-  cfg = jc.Config.for_world(worlds, friction=0.3, depth=4, substeps=1, broadphase=kind)
+  cfg = jc.Config.for_world(worlds, depth=4, substeps=1, broadphase=kind)
   out, sec, compile_s = compile_and_time(jax.vmap(lambda w: jc.rollout(w, cfg, STEPS)[0]), worlds,
                                          repeats=repeats)
   step_s = sec / STEPS

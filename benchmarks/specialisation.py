@@ -34,20 +34,22 @@ STEPS = 20
 def build(batch: int):
   rng = np.random.default_rng(0)
   layouts = [scenes.platformer(rng) for _ in range(batch)]
-  worlds = jc.stack([p.scene.world() for p in layouts])
+  worlds = jc.stack([p.scene.world(friction=0.3) for p in layouts])
   controls = np.zeros(worlds.pos.shape, np.float32)
   controls[:, layouts[0].player, 0] = 20.0
   return worlds, jnp.asarray(controls)
 
 
 def variants(worlds) -> dict[str, tuple[jc.Config, object]]:
-  lean = jc.Config.for_world(worlds, friction=0.3)
+  lean = jc.Config.for_world(worlds)
   free = worlds.replace(inv_mass=jnp.where(worlds.active, jnp.maximum(worlds.inv_mass, 1e-3), 0.0))
-  lean_free = jc.Config.for_world(free, friction=0.3)
+  lean_free = jc.Config.for_world(free)
+  frictionless = worlds.replace(friction=jnp.zeros_like(worlds.friction))
+  top_down = worlds.replace(gravity=jnp.zeros_like(worlds.gravity))
   return {
       "lean (for_world)": (lean, worlds),
-      "friction off": (lean.replace(friction=0.0), worlds),
-      "gravity off (top-down scene)": (lean.replace(gravity=(0.0, 0.0)), worlds),
+      "friction off": (lean.replace(friction=False), frictionless),
+      "gravity off (top-down scene)": (lean.replace(gravity=False), top_down),
       "substeps 2": (lean.replace(substeps=2), worlds),
       "iterations 2": (lean.replace(iterations=2), worlds),
       f"depth 32 (for_world picks {lean.depth})": (lean.replace(depth=32), worlds),

@@ -108,7 +108,7 @@ def run_case(world: jc.World, cfg: jc.Config, steps: int, controls=None, driven:
   immovable_moved = float(np.max(np.abs(pos[:, still] - pos0[still]), initial=0.0))
   pen = np.asarray(penetrations(world, traj.pos), np.float64)
   pen0 = float(metrics.max_penetration(world))
-  g = 0.0 - cfg.gravity[1]  # 0.0 - keeps -0.0 out of the tables.
+  g = (0.0 - float(world.gravity[1])) if cfg.has_gravity else 0.0  # 0.0 - keeps -0.0 out.
   mass = np.where(movable, 1 / np.where(movable, inv_mass, 1), 0.0)
   e = energy(mass, np.concatenate([pos0[None], pos]), np.concatenate([vel0[None], vel]), g)
   gain = np.diff(e)  # gain[k]: energy added by step k.
@@ -172,8 +172,8 @@ def mass_ratio_cases(steps: int, bar) -> list[tuple[str, dict]]:
   rows = []
   for ratio in RATIOS:
     masses = np.where(np.arange(20) % 2 == 0, 1.0, ratio)
-    world = scenes.stack(20, overlaps=0.0, masses=masses).world()
-    for cfg, label in depth_configs(world, 20, friction=0.5):
+    world = scenes.stack(20, overlaps=0.0, masses=masses).world(friction=0.5)
+    for cfg, label in depth_configs(world, 20):
       r = run_case(world, cfg, steps)
       r.update(label=label, height=20)
       rows.append((f"{ratio:g} | {cfg.depth} ({label}) | {r['drift']:.3g}", r))
@@ -183,8 +183,8 @@ def mass_ratio_cases(steps: int, bar) -> list[tuple[str, dict]]:
 
 def tall_stack_case(steps: int, bar) -> list[tuple[str, dict]]:
   """A stack of 100 unit boxes on a floor, depth 100, friction 0.5."""
-  world = scenes.stack(100, overlaps=0.0).world()
-  r = run_case(world, jc.Config.for_world(world, friction=0.5, depth=100), steps)
+  world = scenes.stack(100, overlaps=0.0).world(friction=0.5)
+  r = run_case(world, jc.Config.for_world(world, depth=100), steps)
   r.update(label="override", height=100)
   bar.update()
   return [(f"100 | {r['depth']} | {r['drift']:.3g}", r)]
@@ -192,13 +192,13 @@ def tall_stack_case(steps: int, bar) -> list[tuple[str, dict]]:
 
 def chain_world(length: int = 256) -> tuple[jc.World, float]:
   """A player (body 0) touching a row of `length` unit boxes on a floor, an immovable
-  wall touching the last box. Returns the world and the wall's inner face."""
+  wall touching the last box, friction 0.3. Returns the world and the wall's inner face."""
   x = np.arange(length + 1, dtype=float)  # Player at 0, boxes at 1..length.
   face = length + 0.5
   pos = np.r_[np.stack([x, np.full(length + 1, 0.5)], -1), [[face + 0.5, 2.0]], [[face / 2, -0.5]]]
   half = np.r_[np.full((length + 1, 2), 0.5), [[0.5, 2.0]], [[face / 2 + 2, 0.5]]]
   mass = np.r_[np.ones(length + 1), INF, INF]
-  return jc.World.create(pos, half, mass), face
+  return jc.World.create(pos, half, mass, friction=0.3), face
 
 
 def chain_cases(steps: int, bar) -> list[tuple[str, dict]]:
@@ -209,7 +209,7 @@ def chain_cases(steps: int, bar) -> list[tuple[str, dict]]:
   controls = np.zeros((world.num_bodies, 2), np.float32)
   controls[0, 0] = 20.0
   rows = []
-  for cfg, label in depth_configs(world, 257, friction=0.3):
+  for cfg, label in depth_configs(world, 257):
     r = run_case(world, cfg, steps, controls, driven=True)
     right = np.asarray(r["traj"].pos)[:, 1:257, 0] + 0.5
     intrusion = float(np.max(right - face))
@@ -226,8 +226,8 @@ def far_case(steps: int, bar) -> tuple[list[tuple[str, dict]], float]:
   y = 1e4 + 1e-3 + 2e-3 * np.arange(5)
   pos = np.r_[[[1e4, 1e4 - 0.5]], np.stack([np.full(5, 1e4), y], -1)]
   half = np.r_[[[1.0, 0.5]], np.full((5, 2), 1e-3)]
-  world = jc.World.create(pos, half, np.r_[INF, np.ones(5)])
-  r = run_case(world, jc.Config.for_world(world, friction=0.3), steps)
+  world = jc.World.create(pos, half, np.r_[INF, np.ones(5)], friction=0.3)
+  r = run_case(world, jc.Config.for_world(world), steps)
   bar.update()
   lead = f"5 x 1e-3 at (1e4, 1e4) | {r['substeps']} | {r['pen_max'] / ulp:.2f} | {r['drift'] / ulp:.2f}"
   return [(lead, r)], ulp
@@ -236,10 +236,10 @@ def far_case(steps: int, bar) -> tuple[list[tuple[str, dict]], float]:
 def dt_cases(steps: int, bar) -> list[tuple[str, dict]]:
   """A resting stack of 10, friction 0.5, for each dt; at the `for_world` depth (and
   at depth 10 if that is less)."""
-  world = scenes.stack(10, overlaps=0.0).world()
+  world = scenes.stack(10, overlaps=0.0).world(friction=0.5)
   rows = []
   for dt in DTS:
-    for cfg, label in depth_configs(world, 10, friction=0.5, dt=dt):
+    for cfg, label in depth_configs(world, 10, dt=dt):
       r = run_case(world, cfg, steps)
       r.update(label=label, height=10)
       rows.append((f"{dt:.4g} | {cfg.depth} ({label}) | {cfg.substeps} | {steps * dt:.3g} | "
@@ -249,9 +249,10 @@ def dt_cases(steps: int, bar) -> list[tuple[str, dict]]:
 
 
 def bullet(speed: float) -> jc.World:
-  """A unit box at x=0 flying at `speed` toward a wall 0.1 thick (centre x=3.05)."""
+  """A unit box at x=0 flying at `speed` toward a wall 0.1 thick (centre x=3.05), no
+  gravity."""
   return jc.World.create([[0.0, 0.0], [3.05, 0.0]], [[0.5, 0.5], [0.05, 2.0]], [1.0, INF],
-                         vel=[[speed, 0.0], [0.0, 0.0]])
+                         vel=[[speed, 0.0], [0.0, 0.0]], gravity=(0.0, 0.0))
 
 
 def tunnel_cases(steps: int, bar) -> list[tuple[str, dict]]:
@@ -262,7 +263,7 @@ def tunnel_cases(steps: int, bar) -> list[tuple[str, dict]]:
     world = bullet(speed)
     for forced in (False, True):
       extra = dict(substeps=1) if forced else {}
-      cfg = jc.Config.for_world(world, gravity=(0.0, 0.0), **extra)
+      cfg = jc.Config.for_world(world, **extra)
       r = run_case(world, cfg, steps)
       x = np.asarray(r["traj"].pos)[:, 0, 0]
       per_sub = speed * cfg.dt / cfg.substeps
@@ -292,8 +293,8 @@ def soak(batch: int, steps: int, seed: int = 0) -> dict:
   rng = np.random.default_rng(seed)
   layouts = [scenes.platformer(rng) for _ in range(batch)]
   room = layouts[0]
-  worlds = jc.stack([p.scene.world() for p in layouts])
-  cfg = jc.Config.for_world(worlds, friction=0.3)
+  worlds = jc.stack([p.scene.world(friction=0.3) for p in layouts])
+  cfg = jc.Config.for_world(worlds)
   n = worlds.num_bodies
   sp, sh = room.scene.pos, room.scene.half
   lo = np.array([sp[2, 0] + sh[2, 0], sp[0, 1] + sh[0, 1]])  # Left wall's and floor's inner faces.
@@ -359,7 +360,7 @@ def soak(batch: int, steps: int, seed: int = 0) -> dict:
   non_finite |= (codes & status.NON_FINITE) != 0
   # The tests' default bound: the distance a body travels in one step, here with the
   # largest push on top of gravity.
-  g = -cfg.gravity[1]
+  g = -float(np.min(np.asarray(worlds.gravity)[:, 1]))
   speed_in = np.concatenate([np.zeros((batch, 1)), speed[:, :-1]], axis=1)
   travel = (speed_in + (g + SOAK_PUSH) * cfg.dt) * cfg.dt
   worst = np.unravel_index(np.nanargmax(pen), pen.shape)

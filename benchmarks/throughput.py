@@ -2,8 +2,8 @@
 
 Scene: the demo platformer grown to N bodies (`scenes.platformer_level`: the room,
 the player pushing right, a row of 4 boxes, the rest stacked in columns of 5 behind
-the player), `Config.for_world(batch, friction=0.3)` as in `jaxchain demo`. Each
-setting times a jitted, vmapped rollout of a few steps (compile apart, median of
+the player), friction 0.3 on every body and `Config.for_world(batch)`, as in
+`jaxchain demo`. Each setting times a jitted, vmapped rollout of a few steps (compile apart, median of
 repeats). Settings whose candidate tables would pass the memory budget are skipped
 and listed. Writes `results/throughput.md` and `results/throughput.png`.
 
@@ -37,9 +37,9 @@ BODY_STEPS_PER_CALL = 4e5
 
 def setting(n: int, batch: int, repeats: int) -> dict:
   level = scenes.platformer_level(n)
-  world = level.scene.world()
+  world = level.scene.world(friction=0.3)
   worlds = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), world)
-  cfg = jc.Config.for_world(world, friction=0.3)
+  cfg = jc.Config.for_world(world)
   row = cfg.grid.row_size if cfg.uses_grid(n) else n
   row_info = dict(n=n, batch=batch, broadphase=cfg.broadphase, depth=cfg.depth,
                   links=cfg.links, row=row)
@@ -87,7 +87,7 @@ def write(rows, args, header, wall_s) -> None:
       "",
       "Scene: `scenes.platformer_level(N)`, the demo platformer grown to N bodies (player "
       f"accelerated at {PUSH} along +x into a row of 4 boxes, the rest stacked in columns of 5), "
-      "`Config.for_world(world, friction=0.3)`. Timed: a jitted, vmapped rollout of `steps` "
+      "friction 0.3, `Config.for_world(world)`. Timed: a jitted, vmapped rollout of `steps` "
       "steps (median of up to 5 calls, at least one after a warm-up call), compile apart.",
       "",
       "| N | worlds B | broadphase | depth | links | row M | steps | compile s | ms / step | "

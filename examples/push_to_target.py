@@ -24,10 +24,10 @@ INF = float("inf")
 def scene() -> jc.World:
   """Player (body 0) and box (body 1) on an immovable floor (body 2)."""
   return jc.World.create([[0.0, 0.5], [1.5, 0.5], [0.0, -0.5]],
-                         [[0.5, 0.5], [0.5, 0.5], [50.0, 0.5]], [1.0, 1.0, INF])
+                         [[0.5, 0.5], [0.5, 0.5], [50.0, 0.5]], [1.0, 1.0, INF], friction=0.3)
 
 
-CONFIG = jc.Config(friction=0.3)
+CONFIG = jc.Config(friction=True)
 STEPS = 120
 
 

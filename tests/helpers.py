@@ -19,7 +19,7 @@ TOL = {
 CAPACITY = 24  # Every equivalence scene is padded to this many bodies: one compile.
 
 # Configs shared across modules so compiled functions are reused.
-DEEP = jc.Config(depth=24, gravity=(0.0, 0.0))
+DEEP = jc.Config(depth=24, gravity=False)
 
 
 def pad_world(scene, capacity=CAPACITY):

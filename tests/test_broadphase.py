@@ -16,7 +16,7 @@ SKIN = 1e-4
 # One fixed layout for a 12 x 12 room, so hypothesis examples share compiled code.
 SPEC = jc.GridSpec(origin=(-2.0, -2.0), cell=1.0 + SKIN, shape=(16, 16), reach=0.5,
                    cell_capacity=8, static_capacity=8, static_entries=512)
-GRID = jc.Config(gravity=(0.0, 0.0), depth=6, iterations=2, broadphase="grid", grid=SPEC)
+GRID = jc.Config(gravity=False, depth=6, iterations=2, broadphase="grid", grid=SPEC)
 DENSE = GRID.replace(broadphase="dense")
 
 
@@ -51,8 +51,8 @@ def test_grid_and_dense_resolve_to_the_same_positions(seed):
 
 
 def test_grid_and_dense_rollouts_agree():
-  world = room(11).world().pad(N)
-  cfg = GRID.replace(gravity=(0.0, -9.81), friction=0.4, iterations=1)
+  world = room(11).world(friction=0.4).pad(N)
+  cfg = GRID.replace(gravity=True, friction=True, iterations=1)
   grid, _ = jc.rollout(world, cfg, 30)
   dense, _ = jc.rollout(world, cfg.replace(broadphase="dense"), 30)
   np.testing.assert_allclose(grid.pos, dense.pos, atol=1e-4)
@@ -67,7 +67,7 @@ def test_long_floor_neither_grows_the_cell_nor_misses_contacts():
   world = jc.World.create(pos, half, np.r_[np.inf, np.ones(200)])
   spec = broadphase.allocate(world)
   assert spec.cell < 1.0 and spec.row_size < 64
-  cfg = jc.Config(gravity=(0.0, 0.0), depth=2, broadphase="grid", grid=spec)
+  cfg = jc.Config(gravity=False, depth=2, broadphase="grid", grid=spec)
   out = jc.resolve(world, cfg)
   assert int(out.status) == 0
   np.testing.assert_allclose(out.pos[1:, 1], 0.25, atol=1e-6)  # All lifted onto the floor.
@@ -77,10 +77,10 @@ def test_full_cell_is_reported():
   pos = np.array([[0.2, 0.2], [0.3, 0.6], [0.7, 0.4]])  # Three boxes in cell (0, 0).
   world = jc.World.create(pos, [0.1, 0.1], 1.0)
   spec = jc.GridSpec(origin=(0.0, 0.0), cell=1.0, shape=(4, 4), reach=0.5, cell_capacity=2)
-  out = jc.resolve(world, jc.Config(gravity=(0.0, 0.0), broadphase="grid", grid=spec))
+  out = jc.resolve(world, jc.Config(gravity=False, broadphase="grid", grid=spec))
   assert int(out.status) & status.CELL_OVERFLOW
   assert "cell_capacity" in jc.check(out)[0]
-  ok = jc.resolve(world, jc.Config(gravity=(0.0, 0.0), broadphase="grid",
+  ok = jc.resolve(world, jc.Config(gravity=False, broadphase="grid",
                                    grid=spec.__class__(**{**spec.__dict__, "cell_capacity": 3})))
   assert int(ok.status) == 0
 
@@ -97,14 +97,14 @@ def test_full_static_table_and_too_large_bodies_are_reported():
 
 
 def test_status_is_sticky_and_per_world_under_vmap():
-  good = jc.World.create([[0.2, 0.2], [3.0, 3.0]], [0.1, 0.1], 1.0)
-  bad = jc.World.create([[0.2, 0.2], [0.3, 0.3]], [0.1, 0.1], 1.0)
+  good = jc.World.create([[0.2, 0.2], [3.0, 3.0]], [0.1, 0.1], 1.0, gravity=(0.0, 0.0))
+  bad = jc.World.create([[0.2, 0.2], [0.3, 0.3]], [0.1, 0.1], 1.0, gravity=(0.0, 0.0))
   spec = jc.GridSpec(origin=(0.0, 0.0), cell=1.0, shape=(4, 4), reach=0.5, cell_capacity=1)
-  cfg = jc.Config(gravity=(0.0, 0.0), broadphase="grid", grid=spec)
+  cfg = jc.Config(gravity=False, broadphase="grid", grid=spec)
   out = jax.vmap(lambda w: jc.rollout(w, cfg, 3)[0])(jc.stack([good, bad]))
   np.testing.assert_array_equal(out.status, [0, status.CELL_OVERFLOW])
   assert len(jc.check(out)) == 1 and jc.check(out)[0].startswith("world 1:")
-  again = jc.step(jc.World.create([[0.2, 0.2]], [0.1, 0.1], 1.0).replace(
+  again = jc.step(jc.World.create([[0.2, 0.2]], [0.1, 0.1], 1.0, gravity=(0.0, 0.0)).replace(
       status=jnp.asarray(status.CELL_OVERFLOW, jnp.int32)), cfg)
   assert int(again.status) == status.CELL_OVERFLOW  # Kept until the user clears it.
 
@@ -136,7 +136,7 @@ def test_bodies_outside_the_grid_are_clamped_not_lost():
   pos = np.array([[-50.0, 0.0], [-49.2, 0.0], [60.0, 60.0]])  # Far outside a 4 x 4 grid.
   world = jc.World.create(pos, [0.5, 0.5], 1.0)
   spec = jc.GridSpec(origin=(0.0, 0.0), cell=1.0 + SKIN, shape=(4, 4), reach=0.5)
-  out = jc.resolve(world, jc.Config(gravity=(0.0, 0.0), broadphase="grid", grid=spec))
+  out = jc.resolve(world, jc.Config(gravity=False, broadphase="grid", grid=spec))
   np.testing.assert_allclose(out.pos[:2, 0], [-50.1, -49.1], atol=1e-5)
 
 

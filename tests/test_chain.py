@@ -64,7 +64,7 @@ def test_stack_with_overlap_at_every_level_lifts_in_one_pass():
 def test_depth_below_chain_length_is_not_exact_in_one_pass():
   # A wall three links away is invisible with depth 1: the player shares the push.
   scene = scenes.push_chain(3, overlap=0.2, wall=True)
-  shallow = resolve_scene(scene, jc.Config(depth=1, gravity=(0.0, 0.0)))
+  shallow = resolve_scene(scene, jc.Config(depth=1, gravity=False))
   assert shallow[0, 0] > scene.pos[0, 0] - 0.2 + 1e-3
   assert np.max(np.abs(shallow[1:, 0] - scene.pos[1:, 0])) > 1e-3
 
@@ -168,7 +168,7 @@ def test_old_system_is_order_dependent_and_chaining_is_not():
 
 def test_jit_equals_eager():
   world = pad_world(_random_world(3, immovable_fraction=0.2), capacity=12)
-  config = jc.Config(depth=4, iterations=2, gravity=(0.0, 0.0))
+  config = jc.Config(depth=4, iterations=2, gravity=False)
   jitted = jc.resolve(world, config)
   with jax.disable_jit():
     eager = jc.resolve(world, config)
@@ -180,7 +180,7 @@ def test_vmap_over_padded_batch_equals_one_world_at_a_time():
   worlds = [scenes.random_boxes(rng, n, extent=2.5, immovable_fraction=0.2).world()
             for n in (3, 7, 5)]
   batch = jc.stack(worlds)
-  config = jc.Config(depth=4, iterations=2, gravity=(0.0, 0.0))
+  config = jc.Config(depth=4, iterations=2, gravity=False)
   out = jax.vmap(jc.resolve, in_axes=(0, None))(batch, config)
   for b, w in enumerate(worlds):
     n = w.num_bodies
@@ -198,11 +198,11 @@ def test_inactive_bodies_never_collide():
 
 def test_second_call_does_not_recompile():
   world = pad_world(scenes.push_chain(3))
-  config = jc.Config(depth=5, gravity=(0.0, 0.0))
+  config = jc.Config(depth=5, gravity=False)
   jc.resolve(world, config)
   size = jc.resolve._cache_size()
   shifted = dataclasses.replace(world, pos=world.pos + 0.01)
-  jc.resolve(shifted, jc.Config(depth=5, gravity=(0.0, 0.0)))  # Equal config, new instance.
+  jc.resolve(shifted, jc.Config(depth=5, gravity=False))  # Equal config, new instance.
   assert jc.resolve._cache_size() == size
 
 
@@ -244,7 +244,7 @@ GRAD_SCENES = {
 @pytest.mark.parametrize("name", sorted(GRAD_SCENES))
 def test_grad_is_finite(name):
   world = pad_world(GRAD_SCENES[name])
-  config = jc.Config(depth=6, iterations=2, gravity=(0.0, 0.0))
+  config = jc.Config(depth=6, iterations=2, gravity=False)
 
   def loss(pos, half):
     out = jc.resolve(dataclasses.replace(world, pos=pos, half=half), config)
@@ -278,5 +278,5 @@ def test_immovable_bodies_never_move_even_with_immovable_tracking_off():
   # Config(immovable=False) is only exact without immovable bodies, but must still never
   # move one: the wall stays, the box and player split the overlap as if it were absent.
   world = pad_world(scenes.push_chain(1, overlap=0.2, wall=True))
-  out = jc.resolve(world, jc.Config(depth=4, gravity=(0.0, 0.0), immovable=False))
+  out = jc.resolve(world, jc.Config(depth=4, gravity=False, immovable=False))
   np.testing.assert_array_equal(out.pos[2], world.pos[2])

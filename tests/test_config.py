@@ -11,9 +11,9 @@ from jaxchain import scenes
 
 
 def test_frozen_and_hashable_by_value():
-  a, b = jc.Config(depth=3, gravity=[0.0, -1.0]), jc.Config(depth=3, gravity=(0.0, -1.0))
+  a, b = jc.Config(depth=3, gravity=np.bool_(False)), jc.Config(depth=3, gravity=False)
   assert a == b and hash(a) == hash(b)
-  assert a != jc.Config(depth=4, gravity=(0.0, -1.0))
+  assert a != jc.Config(depth=4, gravity=False)
   with pytest.raises(dataclasses.FrozenInstanceError):
     a.depth = 5
 
@@ -25,8 +25,11 @@ def test_frozen_and_hashable_by_value():
     (dict(depth=2.5), "Config.depth: expected an integer"),
     (dict(iterations=0), "Config.iterations: expected an integer >= 1"),
     (dict(substeps=0), "Config.substeps"),
-    (dict(friction=-0.1), "Config.friction: must be >= 0"),
-    (dict(gravity=(0.0,)), "Config.gravity: expected two finite numbers"),
+    (dict(friction=-0.1), "Config.friction is now an on/off switch"),
+    (dict(friction=0.3), r"friction values live in the World: World.create\(..., friction=0.3\)"),
+    (dict(friction=0), "Config.friction is now an on/off switch"),
+    (dict(gravity=(0.0,)), "Config.gravity is now an on/off switch"),
+    (dict(gravity=(0.0, -9.81)), r"World.create\(..., gravity=\(0.0, -9.81\)\)"),
     (dict(gravity=(0.0, float("inf"))), "Config.gravity"),
     (dict(broadphase="octree"), "Config.broadphase: expected one of"),
     (dict(skin=-1.0), "Config.skin: must be >= 0"),
@@ -38,12 +41,12 @@ def test_bad_config_raises_a_clear_error(kwargs, match):
 
 
 def test_for_world_switches_off_unused_features():
-  free = scenes.push_chain(3, wall=False).world()
-  cfg = jc.Config.for_world(free, gravity=(0.0, 0.0))
+  free = scenes.push_chain(3, wall=False).world(gravity=(0.0, 0.0))
+  cfg = jc.Config.for_world(free)
   assert cfg.immovable is False and cfg.depth == 4 and not cfg.has_gravity
   assert not cfg.has_friction
-  walled = scenes.push_chain(20, wall=True).world()
-  cfg = jc.Config.for_world(walled, friction=0.5)
+  walled = scenes.push_chain(20, wall=True).world(friction=0.5)
+  cfg = jc.Config.for_world(walled)
   assert cfg.immovable is True and cfg.depth == 21 and cfg.has_friction  # The whole chain.
   loose = scenes.random_boxes(np.random.default_rng(0), 30, extent=40.0).world()
   assert jc.Config.for_world(loose).depth == jc.Config.depth  # Nothing long: the default.
@@ -63,11 +66,11 @@ def _jaxpr_lines(config, world):
 
 
 @pytest.mark.parametrize("feature", [
-    dict(gravity=(0.0, -9.81)), dict(friction=0.5), dict(immovable=True), dict(substeps=2),
+    dict(gravity=True), dict(friction=True), dict(immovable=True), dict(substeps=2),
 ])
 def test_switched_off_features_are_not_traced(feature):
-  world = scenes.push_chain(3, wall=False).world()
-  lean = jc.Config.for_world(world, gravity=(0.0, 0.0))
+  world = scenes.push_chain(3, wall=False).world(gravity=(0.0, 0.0))
+  lean = jc.Config.for_world(world)
   assert (lean.has_gravity, lean.has_friction, lean.immovable, lean.substeps) == (
       False, False, False, 1)
   assert _jaxpr_lines(lean, world) < _jaxpr_lines(lean.replace(**feature), world)
@@ -75,8 +78,8 @@ def test_switched_off_features_are_not_traced(feature):
 
 def test_lean_config_gives_the_same_answer_on_scenes_it_fits():
   scene = scenes.push_chain(5, overlap=0.3, wall=False, overlaps=[0.1, 0.0, 0.2, 0.05])
-  world = scene.world()
-  lean = jc.Config.for_world(world, gravity=(0.0, 0.0))
+  world = scene.world(gravity=(0.0, 0.0))
+  lean = jc.Config.for_world(world)
   assert lean.immovable is False
   full = lean.replace(immovable=True, depth=8)
   np.testing.assert_allclose(jc.resolve(world, lean).pos, jc.resolve(world, full).pos, atol=1e-6)

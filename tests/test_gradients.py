@@ -21,7 +21,7 @@ def test_resolve_matches_finite_differences_on_a_chain():
   scene = scenes.push_chain(4, overlap=0.3, wall=False, masses=[1.0, 2.0, 0.5, 1.0, 3.0],
                             overlaps=[0.1, 0.2, 0.15])
   world = scene.world()
-  cfg = jc.Config(depth=4, gravity=(0.0, 0.0))
+  cfg = jc.Config(depth=4, gravity=False)
 
   def f(pos, half):
     return jc.resolve(world.replace(pos=pos, half=half), cfg).pos
@@ -33,8 +33,9 @@ def test_resolve_matches_finite_differences_on_a_chain():
 def test_rollout_matches_finite_differences():
   # Player shoves a box that slides and stops on a floor with friction.
   world = jc.World.create([[0.0, 0.5], [1.5, 0.5], [0.0, -0.5]],
-                          [[0.5, 0.5], [0.5, 0.5], [50.0, 0.5]], [1.0, 1.0, np.inf])
-  cfg = jc.Config(friction=0.3)
+                          [[0.5, 0.5], [0.5, 0.5], [50.0, 0.5]], [1.0, 1.0, np.inf],
+                          friction=0.3)
+  cfg = jc.Config(friction=True)
 
   def f(speed, box_x):
     w = world.replace(vel=world.vel.at[0, 0].set(speed), pos=world.pos.at[1, 0].set(box_x))
@@ -62,8 +63,8 @@ STIFF = {
 
 @pytest.mark.parametrize("name", sorted(STIFF))
 def test_grad_through_rollout_is_finite_on_stiff_scenes(name):
-  world = STIFF[name].world()
-  cfg = jc.Config.for_world(world, friction=0.3)
+  world = STIFF[name].world(friction=0.3)
+  cfg = jc.Config.for_world(world)
 
   def loss(pos, vel):
     final, traj = jc.rollout(world.replace(pos=pos, vel=vel), cfg, 20)

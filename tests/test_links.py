@@ -15,7 +15,7 @@ from tests.helpers import TOL, mixed_room
 N = 32  # Every room is padded to this: one compile per config.
 SPEC = jc.GridSpec(origin=(-2.0, -2.0), cell=1.0 + 1e-4, shape=(16, 16), reach=0.5,
                    cell_capacity=8, static_capacity=8, static_entries=512)
-FULL = jc.Config(gravity=(0.0, 0.0), depth=6, iterations=2)
+FULL = jc.Config(gravity=False, depth=6, iterations=2)
 COMPACT = {"dense": FULL.replace(links=4),
            "grid": FULL.replace(links=4, broadphase="grid", grid=SPEC)}
 
@@ -63,8 +63,8 @@ def test_compact_links_resolve_like_the_full_table(broadphase_name, seed):
 
 
 def test_compact_rollout_with_gravity_and_friction_matches_the_full_table():
-  world = scenes.platformer(np.random.default_rng(3)).scene.world()
-  cfg = jc.Config.for_world(world, friction=0.4)
+  world = scenes.platformer(np.random.default_rng(3)).scene.world(friction=0.4)
+  cfg = jc.Config.for_world(world)
   assert cfg.links == 4  # The demo scene is compacted.
   final, traj = jc.rollout(world, cfg, 90, controls=jnp.zeros_like(world.pos).at[4, 0].set(20.0))
   full, full_traj = jc.rollout(world, cfg.replace(links=None), 90,
@@ -82,7 +82,7 @@ def plank_on_boxes(boxes=6):
 
 def test_too_many_links_are_reported_not_silently_dropped():
   world = plank_on_boxes(6).world()
-  cfg = jc.Config(gravity=(0.0, 0.0), depth=4)
+  cfg = jc.Config(gravity=False, depth=4)
   short = jc.resolve(world, cfg.replace(links=4))
   assert short.status & status.LINK_OVERFLOW
   assert any("Config.links" in line for line in jc.check(short))
@@ -109,7 +109,7 @@ def test_compact_links_have_finite_difference_gradients():
   scene = scenes.push_chain(4, overlap=0.3, wall=False, masses=[1.0, 2.0, 0.5, 1.0, 3.0],
                             overlaps=[0.1, 0.2, 0.15])
   world = scene.world()
-  cfg = jc.Config(depth=4, gravity=(0.0, 0.0), links=2)
+  cfg = jc.Config(depth=4, gravity=False, links=2)
 
   def f(pos, half):
     return jc.resolve(world.replace(pos=pos, half=half), cfg).pos

@@ -59,7 +59,7 @@ def test_mass_ratio_chains_match_the_reference(ratio):
   masses = np.array([1.0, ratio, 1.0, ratio, 1.0])
   scene = scenes.push_chain(4, overlap=0.3, wall=False, masses=masses, overlaps=[0.1, 0.0, 0.2])
   world = scene.world().pad(8)
-  out = np.asarray(jc.resolve(world, jc.Config(depth=8, gravity=(0.0, 0.0))).pos)[:5]
+  out = np.asarray(jc.resolve(world, jc.Config(depth=8, gravity=False)).pos)[:5]
   want = reference.resolve(scene.pos, scene.half, scene.mass)
   np.testing.assert_allclose(out, want, atol=2e-6 * max(1.0, np.log10(max(ratio, 1 / ratio))))
   com = lambda p: masses @ p / masses.sum()
@@ -70,8 +70,8 @@ def test_mass_ratio_chains_match_the_reference(ratio):
 def test_heavy_on_light_stack_rests(ratio):
   masses = np.where(np.arange(8) % 2 == 0, 1.0, ratio)  # Alternating light and heavy.
   scene = scenes.stack(8, overlaps=0.0, masses=masses)
-  world = scene.world()
-  final, traj = jc.rollout(world, jc.Config.for_world(world, friction=0.5), 120)
+  world = scene.world(friction=0.5)
+  final, traj = jc.rollout(world, jc.Config.for_world(world), 120)
   assert_sane(world, final, traj, pen_bound=1e-5)
   np.testing.assert_allclose(final.pos, world.pos, atol=1e-5)
 
@@ -80,8 +80,8 @@ def test_heavy_on_light_stack_rests(ratio):
 
 
 def test_stack_100_high_stays_standing():
-  world = scenes.stack(100, overlaps=0.0).world()
-  cfg = jc.Config.for_world(world, friction=0.5, depth=100)
+  world = scenes.stack(100, overlaps=0.0).world(friction=0.5)
+  cfg = jc.Config.for_world(world, depth=100)
   final, traj = jc.rollout(world, cfg, 100)
   assert_sane(world, final, traj, pen_bound=1e-5)  # float32 at heights up to 100.
   np.testing.assert_allclose(final.pos, world.pos, atol=1e-5)
@@ -91,13 +91,13 @@ def test_stack_100_high_stays_standing():
 def test_chain_of_256_boxes_against_a_wall_moves_only_the_player():
   scene = scenes.push_chain(256, overlap=0.25, wall=True)
   world = scene.world()
-  out = jc.resolve(world, jc.Config(depth=256, gravity=(0.0, 0.0)))
+  out = jc.resolve(world, jc.Config(depth=256, gravity=False))
   want = scene.pos.astype(np.float32)
   want[0, 0] -= 0.25
   np.testing.assert_allclose(out.pos, want, atol=1e-4)  # float32 at x up to 257.
   np.testing.assert_array_equal(out.pos[1:], world.pos[1:])
   assert int(out.status) == 0
-  short = jc.resolve(world, jc.Config(depth=16, gravity=(0.0, 0.0)))
+  short = jc.resolve(world, jc.Config(depth=16, gravity=False))
   assert int(short.status) == status.DEPTH_EXHAUSTED  # Too shallow: reported, not hidden.
 
 
@@ -109,15 +109,15 @@ def test_far_coordinates_and_tiny_boxes_in_float32():
   ulp = float(np.spacing(np.float32(1e4)))
   pos = np.array([[1e4, 1e4 - 0.5], [1e4, 1e4 + 1e-3], [1e4, 1e4 + 3e-3]])
   half = np.array([[1.0, 0.5], [1e-3, 1e-3], [1e-3, 1e-3]])
-  world = jc.World.create(pos, half, [INF, 1.0, 1.0])
-  final, traj = jc.rollout(world, jc.Config.for_world(world, friction=0.3), 60)
+  world = jc.World.create(pos, half, [INF, 1.0, 1.0], friction=0.3)
+  final, traj = jc.rollout(world, jc.Config.for_world(world), 60)
   assert_sane(world, final, traj, pen_bound=2 * ulp)
 
 
 @pytest.mark.parametrize("dt", [1e-4, 1e-3, 1 / 60, 1 / 30])
 def test_resting_stack_for_every_dt(dt):
-  world = scenes.stack(5, overlaps=0.0).world()
-  final, traj = jc.rollout(world, jc.Config.for_world(world, friction=0.5, dt=dt), 100)
+  world = scenes.stack(5, overlaps=0.0).world(friction=0.5)
+  final, traj = jc.rollout(world, jc.Config.for_world(world, dt=dt), 100)
   assert_sane(world, final, traj, pen_bound=1e-5, dt=dt)
   np.testing.assert_allclose(final.pos, world.pos, atol=1e-5)
 
@@ -132,8 +132,9 @@ def _bullet(speed):
 
 
 def test_fast_body_is_stopped_with_substeps_from_for_world():
-  world = _bullet(200.0)  # 3.3 units per 1/60 s step: more than the box and wall are thick.
-  cfg = jc.Config.for_world(world, gravity=(0.0, 0.0))
+  # 3.3 units per 1/60 s step: more than the box and wall are thick.
+  world = _bullet(200.0).replace(gravity=jnp.zeros(2))
+  cfg = jc.Config.for_world(world)
   assert cfg.substeps > 1
   final, traj = jc.rollout(world, cfg, 30)
   assert float(np.max(np.asarray(traj.pos)[:, 0, 0])) <= 2.5 + 1e-5  # Never past the wall.
@@ -141,7 +142,8 @@ def test_fast_body_is_stopped_with_substeps_from_for_world():
 
 
 def test_fast_body_without_substeps_is_reported():
-  final, traj = jc.rollout(_bullet(200.0), jc.Config(gravity=(0.0, 0.0)), 30)
+  final, traj = jc.rollout(_bullet(200.0).replace(gravity=jnp.zeros(2)), jc.Config(gravity=False),
+                           30)
   assert int(final.status) & status.FAST_BODY
   assert any("substeps" in m for m in jc.check(final))
 
@@ -152,8 +154,8 @@ def test_fast_body_without_substeps_is_reported():
 def test_exactly_touching_boxes_stay_exactly_put():
   pos = np.array([[0.0, -0.5], [-1.0, 0.5], [0.0, 0.5], [1.0, 0.5], [0.0, 1.5]])
   half = np.array([[5.0, 0.5]] + [[0.5, 0.5]] * 4)
-  world = jc.World.create(pos, half, [INF, 1.0, 2.0, 1.0, 3.0])
-  final, traj = jc.rollout(world, jc.Config.for_world(world, friction=0.3), 60)
+  world = jc.World.create(pos, half, [INF, 1.0, 2.0, 1.0, 3.0], friction=0.3)
+  final, traj = jc.rollout(world, jc.Config.for_world(world), 60)
   assert_sane(world, final, traj, pen_bound=1e-6)
   np.testing.assert_allclose(final.pos, world.pos, atol=1e-6)
 
@@ -178,10 +180,10 @@ def test_empty_world_and_one_body():
 
 
 def test_batch_with_all_padding_worlds():
-  real = scenes.platformer().scene.world()
+  real = scenes.platformer().scene.world(friction=0.3)
   empty = jc.World.create(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
   batch = jc.stack([real, empty, real])
-  cfg = jc.Config.for_world(batch, friction=0.3)
+  cfg = jc.Config.for_world(batch)
   final, traj = jax.vmap(lambda w: jc.rollout(w, cfg, 30))(batch)
   np.testing.assert_array_equal(final.pos[1], batch.pos[1])
   np.testing.assert_array_equal(final.status, 0)
@@ -204,9 +206,9 @@ def test_one_bad_world_does_not_take_down_the_batch():
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_falling_room_loses_energy(seed):
-  world = scenes.box_room(np.random.default_rng(seed), 40).world()
+  world = scenes.box_room(np.random.default_rng(seed), 40).world(friction=0.3)
   assert float(metrics.max_penetration(world)) == 0.0
-  final, traj = jc.rollout(world, jc.Config.for_world(world, friction=0.3), 300)
+  final, traj = jc.rollout(world, jc.Config.for_world(world), 300)
   assert_sane(world, final, traj)  # Bounded by one step's travel while falling.
   assert float(metrics.max_penetration(final)) < 1e-5
   e = energy(world, traj)
@@ -217,9 +219,10 @@ def test_overlap_recovery_adds_no_kinetic_energy():
   rng = np.random.default_rng(0)
   pos = np.r_[[[3, -0.5], [3, 6.5], [-0.5, 3], [6.5, 3]], rng.uniform(0.5, 5.5, (30, 2))]
   half = np.r_[[[4, 0.5], [4, 0.5], [0.5, 3.5], [0.5, 3.5]], np.full((30, 2), 0.45)]
-  world = jc.World.create(pos, half, np.r_[np.full(4, INF), rng.uniform(0.5, 2, 30)])
+  world = jc.World.create(pos, half, np.r_[np.full(4, INF), rng.uniform(0.5, 2, 30)],
+                          gravity=(0.0, 0.0))
   assert float(metrics.max_penetration(world)) > 0.5  # Packed, heavily overlapping.
-  cfg = jc.Config.for_world(world, gravity=(0.0, 0.0), iterations=4)
+  cfg = jc.Config.for_world(world, iterations=4)
   final, traj = jc.rollout(world, cfg, 50)
   np.testing.assert_array_equal(traj.vel, 0.0)  # Pushed apart by position alone.
   assert float(penetrations(world, traj)[-1]) < float(metrics.max_penetration(world))

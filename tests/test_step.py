@@ -34,8 +34,8 @@ def test_free_fall_is_semi_implicit_euler():
 
 def test_resting_stack_stays_put():
   scene = scenes.stack(6, overlaps=0.0)
-  world = scene.world()
-  config = jc.Config.for_world(world, friction=0.5)
+  world = scene.world(friction=0.5)
+  config = jc.Config.for_world(world)
   final, traj = jc.rollout(world, config, 240)
   worst = jax.vmap(lambda p: jc.metrics.max_penetration(dataclasses.replace(world, pos=p)))(traj.pos)
   assert float(jnp.max(worst)) < 1e-5
@@ -57,8 +57,8 @@ def test_landing_box_stops_on_the_floor_without_bouncing():
 
 @pytest.mark.parametrize("v0, mu", [(3.0, 0.5), (2.0, 0.2)])
 def test_friction_stopping_distance(v0, mu):
-  config = jc.Config(friction=mu)
-  final, traj = jc.rollout(box_on_floor(vx=v0), config, 240)
+  config = jc.Config(friction=True)
+  final, traj = jc.rollout(box_on_floor(vx=v0).replace(friction=jnp.full(2, mu)), config, 240)
   distance = float(final.pos[0, 0])
   # Discrete Coulomb deceleration mu*g per step: v0^2/(2 mu g) up to one step's travel.
   assert abs(distance - v0**2 / (2 * mu * G)) < v0 * DT
@@ -67,22 +67,22 @@ def test_friction_stopping_distance(v0, mu):
 
 
 def test_without_friction_a_box_keeps_sliding():
-  final, _ = jc.rollout(box_on_floor(vx=2.0), jc.Config(friction=0.0), 60)
+  final, _ = jc.rollout(box_on_floor(vx=2.0), jc.Config(friction=False), 60)
   np.testing.assert_allclose(final.vel[0, 0], 2.0, rtol=1e-6)
   np.testing.assert_allclose(final.pos[0, 0], 2.0, rtol=1e-5)
 
 
 def test_head_on_push_is_perfectly_inelastic_and_keeps_momentum():
   world = jc.World.create([[0.0, 0.0], [1.05, 0.0]], [0.5, 0.5], [3.0, 1.0],
-                          vel=[[6.0, 0.0], [0.0, 0.0]])
-  final, _ = jc.rollout(world, jc.Config(gravity=(0.0, 0.0)), 10)
+                          vel=[[6.0, 0.0], [0.0, 0.0]], gravity=(0.0, 0.0))
+  final, _ = jc.rollout(world, jc.Config(gravity=False), 10)
   np.testing.assert_allclose(final.vel[:, 0], [4.5, 4.5], rtol=1e-5)  # 3*6 / (3+1)
 
 
 def test_player_pushing_a_row_into_a_wall_stops_and_nothing_enters_the_wall():
   p = scenes.platformer()
-  world = p.scene.world()
-  config = jc.Config.for_world(world, friction=0.3)
+  world = p.scene.world(friction=0.3)
+  config = jc.Config.for_world(world)
   controls = jnp.zeros((world.num_bodies, 2)).at[p.player, 0].set(20.0)
   final, traj = jc.rollout(world, config, 420, controls)
   right = np.asarray(traj.pos[:, p.row, 0]) + np.asarray(world.half[p.row, 0])
@@ -105,8 +105,8 @@ def test_friction_drags_a_box_along_with_a_sliding_platform():
   # Platform moving at 1 along x: friction accelerates the box by mu*g per second until
   # the box moves with it (friction acts on the velocity relative to the support).
   world = jc.World.create([[0.0, 0.0], [0.0, 1.0]], [[50.0, 0.5], [0.5, 0.5]], [INF, 1.0],
-                          vel=[[1.0, 0.0], [0.0, 0.0]])
-  final, traj = jc.rollout(world, jc.Config(friction=0.5), 60)
+                          vel=[[1.0, 0.0], [0.0, 0.0]], friction=0.5)
+  final, traj = jc.rollout(world, jc.Config(friction=True), 60)
   np.testing.assert_allclose(traj.vel[0, 1, 0], 0.5 * G * DT, rtol=1e-4)  # One step of mu*g.
   np.testing.assert_allclose(final.pos[0, 0], 1.0, rtol=1e-5)
   np.testing.assert_allclose(final.vel[1, 0], 1.0, atol=1e-5)
@@ -114,8 +114,8 @@ def test_friction_drags_a_box_along_with_a_sliding_platform():
 
 
 def test_rollout_matches_repeated_steps_and_make_step():
-  world = scenes.platformer().scene.world()
-  config = jc.Config.for_world(world, friction=0.3)
+  world = scenes.platformer().scene.world(friction=0.3)
+  config = jc.Config.for_world(world)
   final, traj = jc.rollout(world, config, 5)
   assert traj.pos.shape == (5, world.num_bodies, 2)
   step_fn = jc.make_step(config)
@@ -135,8 +135,8 @@ def test_substeps_split_the_step():
 
 
 def test_step_jit_equals_eager_and_does_not_recompile():
-  world = scenes.platformer().scene.world()
-  config = jc.Config.for_world(world, friction=0.3)
+  world = scenes.platformer().scene.world(friction=0.3)
+  config = jc.Config.for_world(world)
   jitted = jc.step(world, config)
   size = jc.step._cache_size()
   with jax.disable_jit():
@@ -147,8 +147,8 @@ def test_step_jit_equals_eager_and_does_not_recompile():
 
 
 def test_vmap_rollout_over_padded_batch():
-  worlds = [scenes.push_chain(n, wall=True).world() for n in (1, 3)]
-  config = jc.Config(friction=0.2, gravity=(0.0, 0.0), depth=4)
+  worlds = [scenes.push_chain(n, wall=True).world(friction=0.2, gravity=(0.0, 0.0)) for n in (1, 3)]
+  config = jc.Config(friction=True, gravity=False, depth=4)
   batch = jc.stack(worlds)
   final, traj = jax.vmap(lambda w: jc.rollout(w, config, 8))(batch)
   assert traj.pos.shape == (2, 8, batch.num_bodies, 2)
@@ -162,8 +162,8 @@ def test_vmap_rollout_over_padded_batch():
 def test_grad_through_rollout_is_finite_and_pushes_the_box():
   # Player hits a box on a floor with friction: a faster player pushes the box further.
   world = jc.World.create([[0.0, 0.5], [1.5, 0.5], [0.0, -0.5]],
-                          [[0.5, 0.5], [0.5, 0.5], [50.0, 0.5]], [1.0, 1.0, INF])
-  config = jc.Config(friction=0.3)
+                          [[0.5, 0.5], [0.5, 0.5], [50.0, 0.5]], [1.0, 1.0, INF], friction=0.3)
+  config = jc.Config(friction=True)
 
   def box_x(speed):
     w = dataclasses.replace(world, vel=world.vel.at[0, 0].set(speed))

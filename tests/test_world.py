@@ -78,6 +78,6 @@ def test_world_is_a_pytree():
   import jax
   w = make()
   leaves = jax.tree.leaves(w)
-  assert len(leaves) == 6  # pos, vel, half, inv_mass, active, status
+  assert len(leaves) == 9  # pos, vel, half, inv_mass, active, friction, gravity, crushed, status
   doubled = jax.tree.map(lambda x: x * 2 if x.dtype != bool else x, w)
   np.testing.assert_array_equal(doubled.pos, 2 * np.asarray(w.pos))

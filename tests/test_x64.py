@@ -14,12 +14,12 @@ SCRIPT = textwrap.dedent("""
                               overlaps=[0.1, 0.0, 0.2, 0.05, 0.0])
     world = scene.world()
     assert world.pos.dtype == jnp.float64, world.pos.dtype
-    out = jc.resolve(world, jc.Config(depth=8, gravity=(0.0, 0.0)))
+    out = jc.resolve(world, jc.Config(depth=8, gravity=False))
     want = reference.resolve(scene.pos, scene.half, scene.mass)
     err = float(np.max(np.abs(np.asarray(out.pos) - want)))
     assert err < 1e-12, err
-    room = scenes.platformer().scene.world()
-    cfg = jc.Config.for_world(room, friction=0.3)
+    room = scenes.platformer().scene.world(friction=0.3)
+    cfg = jc.Config.for_world(room)
     final, traj = jc.rollout(room, cfg, 60)
     assert traj.pos.dtype == jnp.float64 and int(final.status) == 0
     g = jax.grad(lambda v: jc.rollout(room.replace(vel=room.vel.at[4, 0].set(v)), cfg, 30)[0].pos[4, 0])(3.0)

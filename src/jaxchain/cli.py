@@ -30,8 +30,8 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   rng = np.random.default_rng(seed)
   layouts = [scenes.platformer(rng) for _ in range(batch)]
   first = layouts[0]
-  worlds = stack([p.scene.world() for p in layouts])
-  overrides = dict(friction=friction, iterations=iterations)
+  worlds = stack([p.scene.world(friction=friction) for p in layouts])
+  overrides = dict(iterations=iterations)
   if depth is not None:
     overrides["depth"] = depth
   config = Config.for_world(worlds, **overrides)
@@ -45,7 +45,7 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
 
   run = jax.jit(jax.vmap(lambda w, u: rollout(w, config, chunk, u)[0]))
   print(f"jaxchain demo: {batch} worlds x {n} bodies, {steps} steps of {config.dt:.4f} s, "
-        f"depth {config.depth}, iterations {config.iterations}, friction {config.friction}, "
+        f"depth {config.depth}, iterations {config.iterations}, friction {friction}, "
         f"device {jax.devices()[0].device_kind}")
   t0 = time.perf_counter()
   compiled = run.lower(worlds, controls).compile()

@@ -81,12 +81,16 @@ class Config:
 
   Attributes:
     dt: time step in seconds.
-    gravity: `(gx, gy)` acceleration applied to movable bodies.
+    gravity: whether gravity is traced: `True` applies each world's
+      `World.gravity` to its movable bodies, `False` leaves gravity out of the
+      compiled step (the values in the World are then ignored).
     depth: chain depth K, how many links beyond the direct contact a push (and the
       mass behind it) travels in one pass. `0` is plain pairwise Jacobi; a chain of
       L boxes is resolved exactly in one pass when `depth >= L`.
     iterations: resolution passes per (sub)step.
-    friction: Coulomb coefficient mu shared by all contacts (0 switches it off).
+    friction: whether friction is traced: `True` applies Coulomb friction with
+      the per-body coefficients in `World.friction`, `False` leaves it out of the
+      compiled step (the values in the World are then ignored).
     broadphase: `"dense"` (all pairs, O(n^2)), `"grid"` (uniform grid, O(n); needs
       `grid`) or `"auto"` (grid when `grid` is set and the world has more than
       `DENSE_MAX_BODIES` bodies, else dense).
@@ -107,10 +111,10 @@ class Config:
   """
 
   dt: float = 1 / 60
-  gravity: tuple[float, float] = (0.0, -9.81)
+  gravity: bool = True
   depth: int = 8
   iterations: int = 1
-  friction: float = 0.0
+  friction: bool = True
   broadphase: str = "auto"
   substeps: int = 1
   skin: float = 1e-4
@@ -119,19 +123,21 @@ class Config:
   links: int | None = None
 
   def __post_init__(self):
-    g = tuple(float(x) for x in np.asarray(self.gravity, dtype=float).reshape(-1))
-    if len(g) != 2 or not all(math.isfinite(x) for x in g):
-      raise ValueError(f"Config.gravity: expected two finite numbers, got {self.gravity!r}")
-    object.__setattr__(self, "gravity", g)
-    for name in ("dt", "friction", "skin"):
+    for name, example in (("gravity", "gravity=(0.0, -9.81)"), ("friction", "friction=0.3")):
+      v = getattr(self, name)
+      if not isinstance(v, (bool, np.bool_)):
+        raise ValueError(
+            f"Config.{name} is now an on/off switch (a bool), got {v!r}; {name} values live "
+            f"in the World: World.create(..., {example}) or world.replace({name}=...), with "
+            f"Config({name}=True) (the default)")
+      object.__setattr__(self, name, bool(v))
+    for name in ("dt", "skin"):
       v = getattr(self, name)
       if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise ValueError(f"Config.{name}: expected a finite number, got {v!r}")
       object.__setattr__(self, name, float(v))
     if self.dt <= 0:
       raise ValueError(f"Config.dt: must be > 0, got {self.dt}")
-    if self.friction < 0:
-      raise ValueError(f"Config.friction: must be >= 0, got {self.friction}")
     if self.skin < 0:
       raise ValueError(f"Config.skin: must be >= 0, got {self.skin}")
     for name, lo in (("depth", 0), ("iterations", 1), ("substeps", 1)):
@@ -162,11 +168,13 @@ class Config:
 
   @property
   def has_gravity(self) -> bool:
-    return self.gravity != (0.0, 0.0)
+    """Whether gravity (`World.gravity`) is traced."""
+    return self.gravity
 
   @property
   def has_friction(self) -> bool:
-    return self.friction > 0.0
+    """Whether friction (`World.friction`) is traced."""
+    return self.friction
 
   def replace(self, **changes) -> Config:
     """A copy with some fields changed (validated again)."""
@@ -183,9 +191,10 @@ class Config:
     20, a room of loose boxes 8, two boxes 2); and substeps
     beyond what the current speeds need to keep every body from moving, in one
     substep, its own half-extent plus the thinnest body's (the tunnelling limit;
-    see `status.FAST_BODY`; later speed-ups are not foreseen). Gravity and
-    friction are whatever the overrides say (gravity defaults on, friction off);
-    with zero gravity or friction their code is not traced. The broadphase is
+    see `status.FAST_BODY`; later speed-ups are not foreseen), with each world's
+    own gravity; gravity when no world with an active movable body has nonzero
+    `World.gravity`; friction when no active body has `World.friction > 0`.
+    Switched-off features are not traced. The broadphase is
     dense pairs up to `DENSE_MAX_BODIES` body slots, else the grid, sized by
     `broadphase.allocate` from this world, unless the scene is so crowded that a
     grid row would hold over a quarter of the bodies (then dense is cheaper).
@@ -195,20 +204,26 @@ class Config:
 
     Examples:
       >>> import jaxchain as jc
-      >>> w = jc.World.create([[0.0, 0.0], [0.9, 0.0]], [0.5, 0.5], 1.0)
-      >>> cfg = jc.Config.for_world(w, gravity=(0.0, 0.0))
-      >>> cfg.immovable, cfg.depth, cfg.has_gravity
-      (False, 2, False)
+      >>> w = jc.World.create([[0.0, 0.0], [0.9, 0.0]], [0.5, 0.5], 1.0, gravity=(0.0, 0.0))
+      >>> cfg = jc.Config.for_world(w)
+      >>> cfg.immovable, cfg.depth, cfg.has_gravity, cfg.has_friction
+      (False, 2, False, False)
     """
     from jaxchain import broadphase as bp  # Import here: broadphase imports config.
     active = np.asarray(world.active)
     inv_mass = np.asarray(world.inv_mass)
     n = int(world.pos.shape[-2])
-    n_movable = int(np.max(np.sum(active & (inv_mass > 0), axis=-1), initial=0))
+    movable = active & (inv_mass > 0)
+    n_movable = int(np.max(np.sum(movable, axis=-1), initial=0))
+    gravity = np.asarray(world.gravity, np.float64)  # [2] or [b, 2].
+    switches = dict(
+        gravity=bool(np.any(np.any(movable, axis=-1) & np.any(gravity != 0, axis=-1))),
+        friction=bool(np.any(active & (np.asarray(world.friction) > 0))))
+    switches.update({k: v for k, v in overrides.items() if k in switches})
     derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps", "links")
-    base = cls(**{k: v for k, v in overrides.items() if k not in derived_keys})
+    base = cls(**{**{k: v for k, v in overrides.items() if k not in derived_keys}, **switches})
     derived = dict(immovable=bool(np.any(active & (inv_mass == 0))),
-                   substeps=_substeps_for(world, base.dt, base.gravity))
+                   substeps=_substeps_for(world, base.dt, gravity if base.gravity else 0.0))
     broadphase = overrides.get("broadphase", "auto")
     if broadphase in ("auto", "grid") and "grid" not in overrides:
       if broadphase == "grid" or n > DENSE_MAX_BODIES:
@@ -233,15 +248,25 @@ class Config:
     return base.replace(**derived)
 
 
-def _substeps_for(world, dt: float, gravity=(0.0, 0.0), safety: float = 1.25) -> int:
+def _substeps_for(world, dt: float, gravity=0.0, safety: float = 1.25) -> int:
   """Fewest substeps with `|v| dt / substeps < (half + thinnest half) / safety` for
   every active body and axis, at the world's current velocities plus one step of
-  gravity."""
+  gravity.
+
+  Args:
+    world: a world or a padded batch.
+    dt: the step.
+    gravity: `[2]` (one world) or `[b, 2]` (a batch, one per world), or a scalar;
+      normally `world.gravity`, or 0 when gravity is switched off.
+  """
   active = np.asarray(world.active)
   if not active.any():
     return 1
   half = np.asarray(world.half, np.float64)
-  speed = np.abs(np.asarray(world.vel, np.float64)) + np.abs(np.asarray(gravity)) * dt
+  gravity = np.asarray(gravity, np.float64)
+  if gravity.ndim >= 1:
+    gravity = gravity[..., None, :]  # Per world, broadcast over its bodies.
+  speed = np.abs(np.asarray(world.vel, np.float64)) + np.abs(gravity) * dt
   thinnest = np.min(half[active], axis=0)
   ratio = np.where(active[..., None], speed * dt * safety / (half + thinnest), 0.0)
   return max(1, int(np.ceil(np.max(ratio))))

@@ -22,8 +22,10 @@ class Scene(NamedTuple):
   half: np.ndarray
   mass: np.ndarray
 
-  def world(self, vel=None) -> World:
-    return World.create(self.pos, self.half, self.mass, vel=vel)
+  def world(self, vel=None, *, friction=0.0, gravity=(0.0, -9.81)) -> World:
+    """The scene as a `World` (see `World.create` for `vel`, `friction`, `gravity`)."""
+    return World.create(self.pos, self.half, self.mass, vel=vel, friction=friction,
+                        gravity=gravity)
 
 
 def push_chain(length: int, overlap: float = 0.1, wall: bool = True, masses=None,

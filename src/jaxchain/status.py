@@ -17,6 +17,7 @@ NON_FINITE = 1 << 3
 DEPTH_EXHAUSTED = 1 << 4
 FAST_BODY = 1 << 5
 LINK_OVERFLOW = 1 << 6
+SWITCHED_OFF = 1 << 7
 
 MESSAGES = {
     CELL_OVERFLOW: "a grid cell held more movable bodies than Config.grid.cell_capacity; "
@@ -36,6 +37,9 @@ MESSAGES = {
     LINK_OVERFLOW: "a body had more links in one direction than Config.links keeps; the "
                    "extra ones were ignored in that pass or in friction (raise links, set it to None, or "
                    "re-run Config.for_world on the current world)",
+    SWITCHED_OFF: "the World sets friction or gravity values (or holds immovable bodies) that "
+                  "the Config switched off (Config.friction / Config.gravity / Config.immovable "
+                  "is False); they were ignored: use Config.for_world or switch them on",
 }
 
 

@@ -106,7 +106,7 @@ def _substep(world: World, config: Config, h: float, accel: jax.Array | None) ->
   if accel is not None:
     vel = vel + jnp.where(world.active[:, None], accel * h, 0.0)
   if config.has_gravity:
-    vel = vel + jnp.where(movable, jnp.asarray(config.gravity, vel.dtype)[None] * h, 0.0)
+    vel = vel + jnp.where(movable, world.gravity[None] * h, 0.0)
   predicted = world.pos + jnp.where(world.active[:, None], vel * h, 0.0)
   resolved, push, code = _resolve_positions(world, predicted, config, start=world.pos)
   code = code | jnp.where(_too_fast(world, vel, h), status.FAST_BODY, 0)
@@ -161,7 +161,7 @@ def _friction(world: World, pos, vel, push, config: Config, h: float):
     ref = chain.safe_divide(jnp.sum(jnp.where(along_normal, v, 0.0), axis=(0, 2)),
                             count.astype(vel.dtype))
     rel = vel[:, tangent] - ref
-    budget = config.friction * jnp.abs(push[:, 1 - tangent]) / h
+    budget = world.friction * jnp.abs(push[:, 1 - tangent]) / h
     out.append(vel[:, tangent] - jnp.sign(rel) * jnp.minimum(jnp.abs(rel), budget))
   vel = jnp.where(world.movable[:, None], jnp.stack(out, axis=-1), vel)
   return vel, jnp.where(overflow, status.LINK_OVERFLOW, 0)

@@ -15,6 +15,11 @@ import numpy as np
 class World:
   """State of one world (or, with a leading axis, a batch of worlds).
 
+  Every field is a traced array: `jax.grad` and `jax.vmap` reach the physical
+  ones, `pos`, `vel`, `half`, `inv_mass`, `friction` and `gravity`, which are the
+  differentiable fields. `active`, `crushed` and `status` are flags (bool or int),
+  never differentiated.
+
   Attributes:
     pos: `[n, 2]` float array, box centres.
     vel: `[n, 2]` float array, velocities.
@@ -22,6 +27,13 @@ class World:
     inv_mass: `[n]` float array, `1 / mass`; `0` marks an immovable body (a wall,
       or a kinematic platform that moves only by its own velocity).
     active: `[n]` bool array; padding slots are `False` and never collide or move.
+    friction: `[n]` float array, per-body Coulomb coefficient `>= 0` (a contact
+      combines the two bodies' coefficients). Read only when `Config.friction`
+      is on.
+    gravity: `[2]` float array, this world's gravity acceleration on movable
+      bodies (`[b, 2]` for a batch). Read only when `Config.gravity` is on.
+    crushed: `[n]` bool array, output flag written by every step (`False` on
+      creation).
     status: `[]` int32, failure bits (`jaxchain.status`) ORed in by every step and
       kept until the user clears them; `jc.check(world)` explains them.
   """
@@ -31,6 +43,9 @@ class World:
   half: jax.Array
   inv_mass: jax.Array
   active: jax.Array
+  friction: jax.Array
+  gravity: jax.Array
+  crushed: jax.Array
   status: jax.Array
 
   @property
@@ -44,7 +59,8 @@ class World:
     return self.active & (self.inv_mass > 0)
 
   @classmethod
-  def create(cls, pos, half, mass, vel=None, active=None) -> World:
+  def create(cls, pos, half, mass, vel=None, active=None, *, friction=0.0,
+             gravity=(0.0, -9.81)) -> World:
     """Builds a world from host data, checking every field.
 
     Args:
@@ -53,20 +69,25 @@ class World:
       mass: `[n]` masses in `(0, inf]`, or a scalar; `inf` means immovable.
       vel: optional `[n, 2]` velocities (default zero).
       active: optional `[n]` bool mask (default all active).
+      friction: `[n]` per-body Coulomb coefficients `>= 0`, or a scalar for all
+        bodies (default 0: frictionless).
+      gravity: `[2]` gravity acceleration of this world (default `(0, -9.81)`).
 
     Returns:
-      A float32 `World` (float64 if x64 is enabled).
+      A float32 `World` (float64 if x64 is enabled), with `crushed` all `False`
+      and `status` 0.
 
     Raises:
       ValueError: naming the field and the problem, for NaN/inf positions or
-        velocities, half-extents `<= 0`, mass `<= 0` or NaN, or arrays of the
-        wrong rank, shape or length.
+        velocities, half-extents `<= 0`, mass `<= 0` or NaN, negative or NaN
+        friction, non-finite gravity, or arrays of the wrong rank, shape or length.
 
     Examples:
       >>> import jaxchain as jc
-      >>> w = jc.World.create([[0.0, 0.0], [1.5, 0.0]], [0.5, 0.5], [1.0, float("inf")])
-      >>> w.pos.shape, w.inv_mass.tolist()
-      ((2, 2), [1.0, 0.0])
+      >>> w = jc.World.create([[0.0, 0.0], [1.5, 0.0]], [0.5, 0.5], [1.0, float("inf")],
+      ...                     friction=0.3)
+      >>> w.pos.shape, w.inv_mass.tolist(), w.gravity.tolist()
+      ((2, 2), [1.0, 0.0], [0.0, -9.8100004196167])
     """
     pos = _as_float("pos", pos)
     if pos.ndim != 2 or pos.shape[1] != 2:
@@ -88,6 +109,15 @@ class World:
     active = np.ones(n, bool) if active is None else np.asarray(active)
     if active.shape != (n,) or active.dtype != bool:
       raise ValueError(f"active: expected a bool array of shape ({n},), got {active.dtype} {active.shape}")
+    friction = _as_float("friction", friction)
+    if friction.ndim == 0:
+      friction = np.broadcast_to(friction, (n,))
+    if friction.shape != (n,):
+      raise ValueError(
+          f"friction: expected shape ({n},) or a scalar to match pos, got {friction.shape}")
+    gravity = _as_float("gravity", gravity)
+    if gravity.shape != (2,):
+      raise ValueError(f"gravity: expected shape (2,), one acceleration per world, got {gravity.shape}")
     _check_finite("pos", pos)
     _check_finite("vel", vel)
     _check_finite("half", half)
@@ -98,12 +128,15 @@ class World:
     if np.any(mass <= 0):
       raise ValueError(
           f"mass: masses must be > 0 (use inf for immovable); bodies {_where(mass <= 0)} are not")
+    _check_friction(friction)
+    _check_gravity(gravity)
     with np.errstate(divide="ignore"):
       inv_mass = np.where(np.isinf(mass), 0.0, 1.0 / mass)
     dtype = jnp.asarray(0.0).dtype
     f = lambda x: jnp.asarray(x, dtype)
     return cls(pos=f(pos), vel=f(vel), half=f(half), inv_mass=f(inv_mass),
-               active=jnp.asarray(active), status=jnp.zeros((), jnp.int32))
+               active=jnp.asarray(active), friction=f(friction), gravity=f(gravity),
+               crushed=jnp.zeros(n, bool), status=jnp.zeros((), jnp.int32))
 
   def replace(self, **changes) -> World:
     """A copy with some fields changed (no validation: for traced code)."""
@@ -123,7 +156,7 @@ class World:
     extra = capacity - n
     cat = lambda x, fill: jnp.concatenate([x, jnp.full((extra,) + x.shape[1:], fill, x.dtype)])
     return World(**{f: cat(getattr(self, f), fill) for f, fill in _PAD_FILL.items()},
-                 status=self.status)
+                 gravity=self.gravity, status=self.status)
 
 
 def stack(worlds: Sequence[World], capacity: int | None = None) -> World:
@@ -161,12 +194,16 @@ def stack(worlds: Sequence[World], capacity: int | None = None) -> World:
         raise ValueError(f"stack: capacity {capacity} is smaller than the {len(x)} bodies of world {b}")
       batch[b, : len(x)] = x
     out[field] = jnp.asarray(batch)
+  # Per-world fields are stacked, not padded.
+  gravity = np.stack([np.asarray(w.gravity) for w in host])
   status = np.stack([np.asarray(w.status, np.int32) for w in host])
-  return World(**out, status=jnp.asarray(status))
+  return World(**out, gravity=jnp.asarray(gravity), status=jnp.asarray(status))
 
 
-# Padding slots: immovable, inactive unit boxes at the origin.
-_PAD_FILL = dict(pos=0.0, vel=0.0, half=1.0, inv_mass=0.0, active=False)
+# Per-body fields and their padding: immovable, inactive, frictionless unit boxes at
+# the origin, never crushed. (`gravity` and `status` are per world.)
+_PAD_FILL = dict(pos=0.0, vel=0.0, half=1.0, inv_mass=0.0, active=False, friction=0.0,
+                 crushed=False)
 
 
 def _as_float(name: str, x) -> np.ndarray:
@@ -180,6 +217,20 @@ def _check_finite(name: str, x: np.ndarray) -> None:
   bad = ~np.isfinite(x)
   if bad.any():
     raise ValueError(f"{name}: NaN or inf for bodies {_where(bad.reshape(len(x), -1).any(1))}")
+
+
+def _check_friction(friction: np.ndarray) -> None:
+  if np.any(np.isnan(friction)):
+    raise ValueError(f"friction: NaN friction for bodies {_where(np.isnan(friction))}")
+  bad = ~(friction >= 0) | np.isinf(friction)
+  if bad.any():
+    raise ValueError(
+        f"friction: coefficients must be finite and >= 0; bodies {_where(bad)} are not")
+
+
+def _check_gravity(gravity: np.ndarray) -> None:
+  if not np.all(np.isfinite(gravity)):
+    raise ValueError(f"gravity: expected two finite numbers, got {gravity.tolist()}")
 
 
 def _where(mask: np.ndarray) -> list[int]:
