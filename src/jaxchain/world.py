@@ -78,9 +78,14 @@ class World:
       and `status` 0.
 
     Raises:
-      ValueError: naming the field and the problem, for NaN/inf positions or
-        velocities, half-extents `<= 0`, mass `<= 0` or NaN, negative or NaN
-        friction, non-finite gravity, or arrays of the wrong rank, shape or length.
+      ValueError: naming the field and the problem (and the bodies), for NaN/inf
+        positions or velocities, half-extents `<= 0`, mass `<= 0` or NaN, negative,
+        NaN or inf friction, non-finite gravity, or arrays of the wrong rank, shape
+        or length; and, checked again after the cast to the stored dtype, for values
+        float32 cannot hold: coordinates, velocities, friction or gravity that
+        overflow to inf, half-extents that become 0 (subnormal) or inf, and finite
+        masses that are subnormal or whose inverse is (a mass above about 8.5e37
+        would silently become immovable).
 
     Examples:
       >>> import jaxchain as jc
@@ -118,29 +123,63 @@ class World:
     gravity = _as_float("gravity", gravity)
     if gravity.shape != (2,):
       raise ValueError(f"gravity: expected shape (2,), one acceleration per world, got {gravity.shape}")
-    _check_finite("pos", pos)
-    _check_finite("vel", vel)
-    _check_finite("half", half)
-    if np.any(half <= 0):
-      raise ValueError(f"half: half-extents must be > 0; bodies {_where(half <= 0)} are not")
+    for name, x in (("pos", pos), ("vel", vel), ("half", half), ("friction", friction),
+                    ("gravity", gravity)):
+      _check_values(name, x)
     if np.any(np.isnan(mass)):
       raise ValueError(f"mass: NaN mass for bodies {_where(np.isnan(mass))}")
     if np.any(mass <= 0):
       raise ValueError(
           f"mass: masses must be > 0 (use inf for immovable); bodies {_where(mass <= 0)} are not")
-    _check_friction(friction)
-    _check_gravity(gravity)
     with np.errstate(divide="ignore"):
       inv_mass = np.where(np.isinf(mass), 0.0, 1.0 / mass)
-    dtype = jnp.asarray(0.0).dtype
-    f = lambda x: jnp.asarray(x, dtype)
-    return cls(pos=f(pos), vel=f(vel), half=f(half), inv_mass=f(inv_mass),
-               active=jnp.asarray(active), friction=f(friction), gravity=f(gravity),
+    # Checked again after the cast to the stored dtype: float32 overflows at 3.4e38 and
+    # XLA on CPU flushes subnormals (below 1.2e-38) to zero.
+    dtype = np.dtype(jnp.asarray(0.0).dtype)
+    with np.errstate(over="ignore", under="ignore"):
+      cast = {name: x.astype(dtype) for name, x in (
+          ("pos", pos), ("vel", vel), ("half", half), ("mass", mass), ("inv_mass", inv_mass),
+          ("friction", friction), ("gravity", gravity))}
+    _check_cast(cast, dtype, finite_mass=np.isfinite(mass))
+    f = lambda name: jnp.asarray(cast[name])
+    return cls(pos=f("pos"), vel=f("vel"), half=f("half"), inv_mass=f("inv_mass"),
+               active=jnp.asarray(active), friction=f("friction"), gravity=f("gravity"),
                crushed=jnp.zeros(n, bool), status=jnp.zeros((), jnp.int32))
 
   def replace(self, **changes) -> World:
-    """A copy with some fields changed (no validation: for traced code)."""
-    return dataclasses.replace(self, **changes)
+    """A copy with some fields changed, checked when the new values are concrete.
+
+    A concrete value (a NumPy or JAX array, a Python number or list) must have the
+    dtype and shape of the field it replaces (Python numbers and lists, which carry
+    no dtype, are converted to the field's dtype; an int or float `active` is an
+    error, not a mask), and it is checked like `World.create` checks its input: no
+    NaN or inf in `pos`, `vel` or `gravity`, `half > 0` and finite, `inv_mass` and
+    `friction` finite and `>= 0`. Traced values (inside `jit`, `vmap` or `grad`) are
+    passed through unchecked, so `replace` works in traced code.
+
+    Raises:
+      ValueError: naming the field (and the bodies) for a bad concrete value.
+      TypeError: for a name that is not a field.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> import jaxchain as jc
+      >>> w = jc.World.create([[0.0, 0.0], [1.5, 0.0]], [0.5, 0.5], 1.0)
+      >>> w.replace(friction=jnp.full(2, 0.3)).friction.tolist()
+      [0.30000001192092896, 0.30000001192092896]
+      >>> w.replace(active=jnp.array([1, 0]))
+      Traceback (most recent call last):
+      ...
+      ValueError: active: expected bool of shape (2,) like the field it replaces, got int32 (2,); ...
+    """
+    fields = {f.name for f in dataclasses.fields(self)}
+    checked = {}
+    for name, value in changes.items():
+      if name not in fields:
+        raise TypeError(f"replace: World has no field {name!r} (fields: {', '.join(sorted(fields))})")
+      checked[name] = value if isinstance(value, jax.core.Tracer) else _checked(
+          name, value, getattr(self, name))
+    return dataclasses.replace(self, **checked)
 
   def pad(self, capacity: int) -> World:
     """Pads a single world with inactive slots up to `capacity` bodies.
@@ -213,24 +252,108 @@ def _as_float(name: str, x) -> np.ndarray:
     raise ValueError(f"{name}: cannot convert to a float array ({e})") from None
 
 
-def _check_finite(name: str, x: np.ndarray) -> None:
-  bad = ~np.isfinite(x)
-  if bad.any():
-    raise ValueError(f"{name}: NaN or inf for bodies {_where(bad.reshape(len(x), -1).any(1))}")
+# Fields with one entry per body; `*_VEC` ones are `[..., n, 2]`, the rest `[..., n]`.
+# `gravity` (`[..., 2]`) and `status` (`[...]`) are per world.
+_PER_BODY_VEC = ("pos", "vel", "half")
+_PER_BODY = ("inv_mass", "active", "friction", "crushed")
 
 
-def _check_friction(friction: np.ndarray) -> None:
-  if np.any(np.isnan(friction)):
-    raise ValueError(f"friction: NaN friction for bodies {_where(np.isnan(friction))}")
-  bad = ~(friction >= 0) | np.isinf(friction)
+def _bodies(name: str, bad: np.ndarray) -> str:
+  """Which bodies (or, for a batch, which (world, body) pairs) a bad mask marks."""
+  if name in _PER_BODY_VEC:
+    bad = bad.any(-1)
+  elif name not in _PER_BODY:  # Per world.
+    bad = bad.any(-1) if name == "gravity" else bad
+    return f"worlds {_where(np.atleast_1d(bad))}" if bad.ndim >= 1 else "the world"
+  if bad.ndim == 1:
+    return f"bodies {_where(bad)}"
+  idx = np.argwhere(bad)
+  pairs = [tuple(int(k) for k in i) for i in idx[:10]] + (["..."] if len(idx) > 10 else [])
+  return f"(world, body) {pairs}"
+
+
+def _check_values(name: str, x: np.ndarray) -> None:
+  """The value rules of one float field (any leading batch axes), on the host."""
+  if name in ("pos", "vel", "half"):
+    bad = ~np.isfinite(x)
+    if bad.any():
+      raise ValueError(f"{name}: NaN or inf for {_bodies(name, bad)}")
+    if name == "half" and np.any(x <= 0):
+      raise ValueError(f"half: half-extents must be > 0; {_bodies(name, x <= 0)} are not")
+  elif name == "inv_mass":
+    bad = ~(np.isfinite(x) & (x >= 0))
+    if bad.any():
+      raise ValueError(f"inv_mass: inverse masses must be finite and >= 0 (0 = immovable); "
+                       f"{_bodies(name, bad)} are not")
+  elif name == "friction":
+    if np.any(np.isnan(x)):
+      raise ValueError(f"friction: NaN friction for {_bodies(name, np.isnan(x))}")
+    bad = ~(np.isfinite(x) & (x >= 0))
+    if bad.any():
+      raise ValueError(
+          f"friction: coefficients must be finite and >= 0; {_bodies(name, bad)} are not")
+  elif name == "gravity":
+    if not np.all(np.isfinite(x)):
+      got = f", got {x.tolist()}" if x.ndim == 1 else ""
+      raise ValueError(f"gravity: expected finite numbers{got}; NaN or inf for "
+                       f"{_bodies(name, ~np.isfinite(x))}")
+
+
+def _check_cast(cast: dict[str, np.ndarray], dtype: np.dtype, finite_mass: np.ndarray) -> None:
+  """What `World.create` checks after casting its (valid, float64) input to `dtype`;
+  `finite_mass` marks the bodies whose input mass is finite (not immovable)."""
+  info = np.finfo(dtype)
+  hint = "enable x64 (JAX_ENABLE_X64=1) or rescale" if dtype != np.float64 else "rescale"
+  for name in ("pos", "vel", "friction", "gravity"):
+    bad = ~np.isfinite(cast[name])
+    if bad.any():
+      raise ValueError(f"{name}: too large for {dtype.name} (overflows to inf, above "
+                       f"{info.max:.3g}) for {_bodies(name, bad)}; {hint}")
+  half = cast["half"]
+  bad = ~(np.isfinite(half) & (half >= info.tiny))
   if bad.any():
     raise ValueError(
-        f"friction: coefficients must be finite and >= 0; bodies {_where(bad)} are not")
+        f"half: half-extents of {_bodies('half', bad)} become 0 or inf in {dtype.name} (they must "
+        f"lie between {info.tiny:.3g} and {info.max:.3g}); {hint}")
+  mass, inv = cast["mass"], cast["inv_mass"]
+  finite = finite_mass  # inf is immovable, inverse 0 by design.
+  small = finite & ~(mass >= info.tiny)
+  if small.any():
+    raise ValueError(
+        f"mass: masses of {_bodies('inv_mass', small)} are below the smallest normal "
+        f"{dtype.name} ({info.tiny:.3g}) and flush to 0 on the device (mass must be at least "
+        f"{info.tiny:.3g}); {hint}")
+  big = finite & ~(np.isfinite(mass) & np.isfinite(inv) & (inv >= info.tiny))
+  if big.any():
+    raise ValueError(
+        f"mass: masses of {_bodies('inv_mass', big)} are so large that 1/mass flushes to 0 in "
+        f"{dtype.name} (mass must be at most {1 / info.tiny:.3g}), which would make them "
+        f"immovable; use inf for an immovable body, or {hint}")
 
 
-def _check_gravity(gravity: np.ndarray) -> None:
-  if not np.all(np.isfinite(gravity)):
-    raise ValueError(f"gravity: expected two finite numbers, got {gravity.tolist()}")
+def _checked(name: str, value, old):
+  """`value`, checked against the field `old` it replaces (see `World.replace`)."""
+  old_dtype, old_shape = np.dtype(old.dtype), tuple(old.shape)
+  if hasattr(value, "dtype") and hasattr(value, "shape"):  # NumPy or JAX array, NumPy scalar.
+    host = np.asarray(value)
+  else:  # Python numbers and lists carry no dtype: take the field's.
+    try:
+      host = np.asarray(value)
+    except (TypeError, ValueError) as e:
+      raise ValueError(f"{name}: cannot convert to an array ({e})") from None
+    kind_ok = {"b": "b", "f": "fiu", "i": "iu"}.get(old_dtype.kind, old_dtype.kind)
+    if host.dtype.kind in kind_ok:
+      with np.errstate(over="ignore"):
+        host = host.astype(old_dtype)
+      value = jnp.asarray(host)
+  if host.dtype != old_dtype or host.shape != old_shape:
+    hint = ("a bool mask is needed (e.g. x != 0)" if old_dtype == bool else
+            f"convert with jnp.asarray(x, world.{name}.dtype) and match the shape")
+    raise ValueError(f"{name}: expected {old_dtype.name} of shape {old_shape} like the field it "
+                     f"replaces, got {host.dtype.name} {host.shape}; {hint}")
+  if old_dtype.kind == "f":
+    _check_values(name, host)
+  return value
 
 
 def _where(mask: np.ndarray) -> list[int]:
