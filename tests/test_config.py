@@ -3,6 +3,7 @@
 import dataclasses
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -93,3 +94,94 @@ def test_grid_is_not_traced_for_small_worlds():
   text = lambda cfg: str(jax.make_jaxpr(lambda w: jc.step(w, cfg))(world))
   sorts = lambda cfg: text(cfg).count(" sort[")
   assert sorts(lean) == 0 and sorts(grid) > 0
+
+
+# --- Physical switches: values live in the World ---------------------------------------
+
+
+def test_switches_accept_bools_and_numpy_bools_only():
+  assert jc.Config(gravity=np.bool_(False), friction=np.bool_(True)) == jc.Config(
+      gravity=False, friction=True)
+  assert jc.Config().has_gravity and jc.Config().has_friction  # Both traced by default.
+  cfg = jc.Config(gravity=False, friction=False)
+  assert (cfg.has_gravity, cfg.has_friction) == (False, False)
+  with pytest.raises(ValueError, match=r"World.create\(..., friction=0.3\)"):
+    jc.Config(friction=0.3)
+  with pytest.raises(ValueError, match="Config.gravity is now an on/off switch"):
+    jc.Config().replace(gravity=(0.0, 0.0))
+
+
+def test_for_world_switches_on_what_the_world_sets():
+  free = lambda **kw: scenes.push_chain(2, wall=False).world(**kw)
+  assert jc.Config.for_world(free()).has_gravity  # Default gravity, movable bodies.
+  assert not jc.Config.for_world(free()).has_friction  # Default friction 0.
+  assert jc.Config.for_world(free(friction=0.2)).has_friction
+  one = free().replace(friction=jnp.array([0.0, 0.0, 0.1]))
+  assert jc.Config.for_world(one).has_friction  # Any active body.
+  inactive = jc.World.create([[0.0, 0.0], [2.0, 0.0]], [0.5, 0.5], 1.0, friction=[0.0, 0.5],
+                             active=np.array([True, False]))
+  assert not jc.Config.for_world(inactive).has_friction
+  assert not jc.Config.for_world(free(gravity=(0.0, 0.0))).has_gravity
+  assert jc.Config.for_world(free(gravity=(0.5, 0.0))).has_gravity  # Sideways counts.
+  walls = jc.World.create([[0.0, 0.0]], [0.5, 0.5], np.inf)  # Nothing gravity could move.
+  assert not jc.Config.for_world(walls).has_gravity
+  assert not jc.Config.for_world(free(friction=0.2), friction=False).has_friction  # Overrides.
+  assert jc.Config.for_world(free(gravity=(0.0, 0.0)), gravity=True).has_gravity
+
+
+def test_for_world_on_a_batch_looks_at_each_worlds_gravity():
+  still = jc.World.create([[0.0, 5.0]], [0.5, 0.5], 1.0, gravity=(0.0, 0.0))
+  heavy = still.replace(gravity=jnp.array([0.0, -6000.0]))  # 100 per step: 3 substeps.
+  walls = jc.World.create([[0.0, 0.0]], [0.5, 0.5], np.inf, gravity=(0.0, -6000.0))
+  assert not jc.Config.for_world(jc.stack([still, walls])).has_gravity  # No movable body feels it.
+  cfg = jc.Config.for_world(jc.stack([still, heavy]))
+  assert cfg.has_gravity and cfg.substeps == 3
+  assert jc.Config.for_world(jc.stack([still, still])).substeps == 1
+  assert jc.Config.for_world(heavy, gravity=False).substeps == 1  # Off: not counted.
+
+
+def test_for_world_refuses_scenes_that_need_too_many_substeps():
+  tiny = jc.World.create([[0.0, 0.0]], [1e-9, 1e-9], 1.0)  # Would need 1.7 million.
+  with pytest.raises(ValueError, match=r"body 0 would need \d+ substeps, more than "
+                                       r"MAX_SUBSTEPS = 64") as err:
+    jc.Config.for_world(tiny)
+  for part in ("moves at 0.164 along y", "half-extent 1e-09", "larger bodies", "smaller dt",
+               "substeps="):
+    assert part in str(err.value)
+  assert jc.Config.for_world(tiny, substeps=4).substeps == 4  # An explicit choice is kept.
+  slow = jc.World.create([[0.0, 0.0], [3.0, 0.0]], [0.5, 0.5], 1.0)
+  fast = slow.replace(vel=jnp.array([[0.0, 0.0], [1e4, 0.0]]))
+  with pytest.raises(ValueError, match=r"body 1 of world 1 would need .* moves at 1e\+04 along x"):
+    jc.Config.for_world(jc.stack([slow, fast]))
+  limit = jc.config.MAX_SUBSTEPS  # Just at the limit is fine.
+  edge = slow.replace(vel=jnp.array([[0.0, 0.0], [limit * 60 / 1.25 * 0.99, 0.0]]),
+                      gravity=jnp.zeros(2))
+  assert jc.Config.for_world(edge).substeps == limit
+
+
+@pytest.mark.parametrize("kwargs", [
+    dict(dt=np.float32(0.01)), dict(dt=np.float64(0.02)), dict(skin=np.float32(1e-3)),
+    dict(depth=np.int64(3)), dict(iterations=np.int32(2)), dict(substeps=np.int16(2)),
+    dict(links=np.int64(4)), dict(immovable=np.bool_(False)), dict(broadphase=np.str_("dense")),
+    dict(dt=np.int64(1)),
+])
+def test_numpy_scalars_are_accepted(kwargs):
+  cfg = jc.Config(**kwargs)
+  for name, value in kwargs.items():
+    got = getattr(cfg, name)
+    assert got == value and type(got) in (int, float, bool, str)  # Stored as Python values.
+  assert hash(cfg) == hash(jc.Config(**{k: v.item() for k, v in kwargs.items()}))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(depth=True), "Config.depth: expected an integer"),
+    (dict(depth=np.bool_(True)), "Config.depth: expected an integer"),
+    (dict(iterations=np.float64(2.0)), "Config.iterations: expected an integer"),
+    (dict(links=np.bool_(True)), "Config.links: expected None or an integer"),
+    (dict(dt=np.bool_(True)), "Config.dt: expected a finite number"),
+    (dict(dt=np.float32("nan")), "Config.dt: expected a finite number"),
+    (dict(immovable=np.int64(1)), "Config.immovable: expected a bool"),
+])
+def test_numpy_scalars_of_the_wrong_kind_are_rejected(kwargs, match):
+  with pytest.raises(ValueError, match=match):
+    jc.Config(**kwargs)

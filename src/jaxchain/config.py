@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -18,6 +19,14 @@ DENSE_MAX_BODIES = 192
 # `for_world` keeps at least this many links per body and direction (two unit boxes
 # side by side under a third is 2; an overlapping crowd may have 3).
 MIN_LINKS = 4
+
+# `for_world` refuses a scene that would need more substeps than this to keep every
+# body under the tunnelling limit (a box of half-extent 1e-9 falling under gravity
+# would get 1.7 million): a tiny or very fast body is nearly always a units mistake.
+# Pass `substeps=` to `for_world` explicitly to run such a scene anyway.
+MAX_SUBSTEPS = 64
+
+_REALS = (int, float, np.integer, np.floating)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,7 +142,7 @@ class Config:
       object.__setattr__(self, name, bool(v))
     for name in ("dt", "skin"):
       v = getattr(self, name)
-      if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+      if isinstance(v, bool) or not isinstance(v, _REALS) or not math.isfinite(v):
         raise ValueError(f"Config.{name}: expected a finite number, got {v!r}")
       object.__setattr__(self, name, float(v))
     if self.dt <= 0:
@@ -150,10 +159,12 @@ class Config:
       raise ValueError(f"Config.links: expected None or an integer >= 1, got {self.links!r}")
     if self.links is not None:
       object.__setattr__(self, "links", int(self.links))
-    if self.broadphase not in BROADPHASES:
+    if not isinstance(self.broadphase, str) or self.broadphase not in BROADPHASES:
       raise ValueError(f"Config.broadphase: expected one of {BROADPHASES}, got {self.broadphase!r}")
-    if not isinstance(self.immovable, bool):
+    object.__setattr__(self, "broadphase", str(self.broadphase))
+    if not isinstance(self.immovable, (bool, np.bool_)):
       raise ValueError(f"Config.immovable: expected a bool, got {self.immovable!r}")
+    object.__setattr__(self, "immovable", bool(self.immovable))
     if self.grid is not None and not isinstance(self.grid, GridSpec):
       raise ValueError(f"Config.grid: expected a GridSpec or None, got {type(self.grid).__name__}")
     if self.broadphase == "grid" and self.grid is None:
@@ -202,6 +213,11 @@ class Config:
     one direction now)` per body and direction (None when that is not below the
     candidate row: nothing to save). Explicit `overrides` always win.
 
+    Raises:
+      ValueError: when a body would need more than `MAX_SUBSTEPS` substeps (a tiny
+        or very fast body: the message names it, its speed and half-extent); pass
+        `substeps=` explicitly to skip that check. And for invalid overrides.
+
     Examples:
       >>> import jaxchain as jc
       >>> w = jc.World.create([[0.0, 0.0], [0.9, 0.0]], [0.5, 0.5], 1.0, gravity=(0.0, 0.0))
@@ -222,8 +238,12 @@ class Config:
     switches.update({k: v for k, v in overrides.items() if k in switches})
     derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps", "links")
     base = cls(**{**{k: v for k, v in overrides.items() if k not in derived_keys}, **switches})
-    derived = dict(immovable=bool(np.any(active & (inv_mass == 0))),
-                   substeps=_substeps_for(world, base.dt, gravity if base.gravity else 0.0))
+    derived = dict(immovable=bool(np.any(active & (inv_mass == 0))))
+    if "substeps" not in overrides:
+      need = _substep_need(world, base.dt, gravity if base.gravity else 0.0)
+      if need.substeps > MAX_SUBSTEPS:
+        raise ValueError(need.message(base.dt))
+      derived["substeps"] = need.substeps
     broadphase = overrides.get("broadphase", "auto")
     if broadphase in ("auto", "grid") and "grid" not in overrides:
       if broadphase == "grid" or n > DENSE_MAX_BODIES:
@@ -248,25 +268,57 @@ class Config:
     return base.replace(**derived)
 
 
-def _substeps_for(world, dt: float, gravity=0.0, safety: float = 1.25) -> int:
+class _SubstepNeed(NamedTuple):
+  """How many substeps a world needs, and the body that needs the most."""
+
+  substeps: int
+  body: tuple[int, ...]  # (body,) or (world, body).
+  axis: int
+  speed: float  # Along `axis`, with one step of gravity.
+  half: float
+  thinnest: float  # The thinnest active body's half-extent along `axis`.
+  safety: float
+
+  def message(self, dt: float) -> str:
+    where = (f"body {self.body[0]}" if len(self.body) == 1
+             else f"body {self.body[-1]} of world {self.body[0]}")
+    return (
+        f"Config.for_world: {where} would need {self.substeps} substeps, more than "
+        f"MAX_SUBSTEPS = {MAX_SUBSTEPS}: it moves at {self.speed:.3g} along {'xy'[self.axis]} "
+        f"(its velocity plus one step of gravity) and has half-extent {self.half:.3g} there "
+        f"(the thinnest body {self.thinnest:.3g}), so one step of dt = {dt:.3g} carries it "
+        f"{self.speed * dt:.3g}, and without tunnelling it may move only "
+        f"{(self.half + self.thinnest) / self.safety:.3g} per substep ((its half-extent + the "
+        f"thinnest) / {self.safety:g}). Use larger bodies (or other length units) or a smaller "
+        f"dt; or pass substeps= explicitly to run it anyway (status.FAST_BODY then reports "
+        f"what moves too far)")
+
+
+def _substep_need(world, dt: float, gravity=0.0, safety: float = 1.25) -> _SubstepNeed:
   """Fewest substeps with `|v| dt / substeps < (half + thinnest half) / safety` for
   every active body and axis, at the world's current velocities plus one step of
-  gravity.
+  gravity, and the body that sets it.
 
   Args:
     world: a world or a padded batch.
     dt: the step.
     gravity: `[2]` (one world) or `[b, 2]` (a batch, one per world), or a scalar;
       normally `world.gravity`, or 0 when gravity is switched off.
+    safety: margin on the tunnelling limit.
   """
   active = np.asarray(world.active)
   if not active.any():
-    return 1
+    return _SubstepNeed(1, (0,) * active.ndim, 0, 0.0, 0.0, 0.0, safety)
   half = np.asarray(world.half, np.float64)
   gravity = np.asarray(gravity, np.float64)
   if gravity.ndim >= 1:
     gravity = gravity[..., None, :]  # Per world, broadcast over its bodies.
-  speed = np.abs(np.asarray(world.vel, np.float64)) + np.abs(gravity) * dt
+  speed = np.broadcast_to(np.abs(np.asarray(world.vel, np.float64)) + np.abs(gravity) * dt,
+                          half.shape)
   thinnest = np.min(half[active], axis=0)
   ratio = np.where(active[..., None], speed * dt * safety / (half + thinnest), 0.0)
-  return max(1, int(np.ceil(np.max(ratio))))
+  worst = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+  return _SubstepNeed(max(1, int(np.ceil(ratio[worst]))), tuple(int(i) for i in worst[:-1]),
+                      int(worst[-1]), float(speed[worst]), float(half[worst]),
+                      float(thinnest[worst[-1]]), safety)
+
