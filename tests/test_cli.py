@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import jaxchain
-from jaxchain import cli
+from jaxchain import cli, status
 
 
 def test_demo_figures():
@@ -22,6 +22,7 @@ def test_demo_figures():
   assert figures["max_penetration"] < 1e-4
   np.testing.assert_allclose(figures["row_moved_mean"], 2.0, atol=1e-3)  # Gap to the wall.
   assert figures["world_steps_per_s"] > 0 and figures["compile_s"] > 0
+  assert figures["status_messages"] == {}
 
 
 def test_console_script_runs_and_rejects_bad_flags():
@@ -43,3 +44,51 @@ def test_docstring_examples(name):
   module = importlib.import_module(f"jaxchain.{name}")
   result = doctest.testmod(module, extraglobs={"jc": jaxchain}, optionflags=doctest.ELLIPSIS)
   assert result.attempted > 0 and result.failed == 0
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--depth", "-1"], "argument --depth: must be an integer >= 0, got -1"),
+    (["--depth", "two"], "argument --depth: expected an integer, got 'two'"),
+    (["--friction", "nan"], "argument --friction: must be a finite number, got nan"),
+    (["--friction", "-1"], "argument --friction: must be >= 0, got -1"),
+    (["--friction", "inf"], "argument --friction: must be a finite number"),
+    (["--push", "nan"], "argument --push: must be a finite number, got nan"),
+    (["--push", "inf"], "argument --push: must be a finite number, got inf"),
+    (["--push=-1e999"], "argument --push: must be a finite number, got -1e999"),
+    (["--batch", "0"], "argument --batch: must be a positive integer, got 0"),
+    (["--steps", "-3"], "argument --steps: must be a positive integer, got -3"),
+    (["--iterations", "0"], "argument --iterations: must be a positive integer"),
+    (["--seed", "-1"], "argument --seed: must be an integer >= 0, got -1"),
+    (["--steps", "10", "--chunk", "4"], "--steps (10) must be a multiple of --chunk (4)"),
+])
+def test_bad_flags_are_argparse_errors(flags, message, capsys):
+  with pytest.raises(SystemExit) as exit_info:
+    cli.main(["demo", "--no-progress", *flags])
+  assert exit_info.value.code == 2
+  err = capsys.readouterr().err
+  assert message in err and "Traceback" not in err
+
+
+def test_demo_reports_every_status_bit_and_never_claims_all_is_well(capsys):
+  # A push of 1e30 moves the player across the room in one step: FAST_BODY in both worlds.
+  figures = cli.demo(batch=2, steps=4, chunk=2, seed=0, depth=None, iterations=1,
+                     friction=0.3, push=1e30, progress=False)
+  out = capsys.readouterr().out
+  fast = status.MESSAGES[status.FAST_BODY]
+  assert figures["status_messages"].get(fast) == 2
+  assert f"status FAST_BODY in 2/2 worlds: {fast}" in out
+  assert out.count(fast) == 1  # Each message once, with its count of worlds.
+  for text in figures["status_messages"]:
+    assert text in out
+  assert "status: ok" not in out and "all states finite     True" not in out
+  if status.MESSAGES[status.NON_FINITE] in figures["status_messages"]:
+    assert not figures["finite"] and "all states finite     False" in out
+
+
+def test_status_summary_counts_worlds_per_message():
+  world = jaxchain.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0)
+  batch = jaxchain.stack([world] * 3)
+  codes = np.array([status.FAST_BODY, status.FAST_BODY | status.NON_FINITE, 0], np.int32)
+  summary = cli.status_summary(batch.replace(status=codes))
+  assert summary == {status.MESSAGES[status.NON_FINITE]: 1, status.MESSAGES[status.FAST_BODY]: 2}
+  assert cli.status_summary(batch) == {}

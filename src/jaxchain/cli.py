@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
@@ -11,22 +12,73 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from jaxchain import metrics, scenes
+from jaxchain import metrics, scenes, status
 from jaxchain.config import Config
 from jaxchain.step import rollout
 from jaxchain.world import stack
 
+# Status bit -> its name in `jaxchain.status` (FAST_BODY, ...), for the summary.
+_BIT_NAMES = {bit: name for name, bit in vars(status).items()
+              if name.isupper() and isinstance(bit, int) and bit in status.MESSAGES}
+
+
+def _integer(text: str, lo: int) -> int:
+  try:
+    value = int(text)
+  except ValueError:
+    raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+  if value < lo:
+    what = "a positive integer" if lo == 1 else f"an integer >= {lo}"
+    raise argparse.ArgumentTypeError(f"must be {what}, got {value}")
+  return value
+
 
 def _positive_int(text: str) -> int:
-  value = int(text)
-  if value < 1:
-    raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
+  return _integer(text, 1)
+
+
+def _nonnegative_int(text: str) -> int:
+  return _integer(text, 0)
+
+
+def _finite_float(text: str, nonnegative: bool = False) -> float:
+  try:
+    value = float(text)
+  except ValueError:
+    raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+  if not math.isfinite(value):
+    raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+  if nonnegative and value < 0:
+    raise argparse.ArgumentTypeError(f"must be >= 0, got {value:g}")
   return value
+
+
+def _nonnegative_float(text: str) -> float:
+  return _finite_float(text, nonnegative=True)
+
+
+def status_summary(world) -> dict[str, int]:
+  """`{message: number of worlds}` for every status bit set in any world of the
+  batch, each message once, in `jc.check` order (from `status.check`)."""
+  counts: dict[str, int] = {}
+  for line in status.check(world):
+    text = line.split(": ", 1)[1]  # Drop the "world b: " prefix.
+    counts[text] = counts.get(text, 0) + 1
+  return counts
 
 
 def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
          iterations: int, friction: float, push: float, progress: bool) -> dict:
-  """Runs the platformer demo and returns the figures it prints."""
+  """Runs the platformer demo and returns the figures it prints.
+
+  Returns:
+    The figures: timings, throughput, penetration and wall intrusion, whether every
+    state is finite, and `status_messages`, `{message: number of worlds}` for every
+    status bit set at the end (empty when all is well).
+  """
+  chunk = min(chunk, steps)
+  if steps % chunk:
+    raise ValueError(f"--steps ({steps}) must be a multiple of --chunk ({chunk})")
   rng = np.random.default_rng(seed)
   layouts = [scenes.platformer(rng) for _ in range(batch)]
   first = layouts[0]
@@ -39,13 +91,10 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   controls = np.zeros((batch, n, 2), np.float32)
   controls[:, first.player, 0] = push  # The player's input: a constant push to the right.
   controls = jnp.asarray(controls)
-  chunk = min(chunk, steps)
-  if steps % chunk:
-    raise SystemExit(f"jaxchain demo: --steps ({steps}) must be a multiple of --chunk ({chunk})")
 
   run = jax.jit(jax.vmap(lambda w, u: rollout(w, config, chunk, u)[0]))
   print(f"jaxchain demo: {batch} worlds x {n} bodies, {steps} steps of {config.dt:.4f} s, "
-        f"depth {config.depth}, iterations {config.iterations}, friction {friction}, "
+        f"depth {config.depth}, iterations {config.iterations}, friction {friction:g}, "
         f"device {jax.devices()[0].device_kind}")
   t0 = time.perf_counter()
   compiled = run.lower(worlds, controls).compile()
@@ -61,17 +110,22 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
       bar.update(chunk)
   run_s = time.perf_counter() - t0
 
-  finite = bool(np.all(np.isfinite(np.asarray(world.pos))))
-  penetration = float(np.max(jax.vmap(metrics.max_penetration)(world)))
-  row_right = np.asarray(world.pos[:, first.row, 0] + world.half[:, first.row, 0])
-  intrusion = float(np.max(np.maximum(row_right - first.wall_face, 0.0)))
-  moved = np.asarray(world.pos[:, first.row, 0])[:, -1] - start_row[:, -1]
-  at_wall = int(np.sum(first.wall_face - row_right[:, -1] < 1e-3))
+  codes = np.asarray(world.status)
+  messages = status_summary(world)
+  finite = bool(np.all(np.isfinite(np.asarray(world.pos))) and
+                np.all(np.isfinite(np.asarray(world.vel))) and
+                not np.any(codes & status.NON_FINITE))
+  with np.errstate(invalid="ignore", over="ignore"):
+    penetration = float(np.max(jax.vmap(metrics.max_penetration)(world)))
+    row_right = np.asarray(world.pos[:, first.row, 0] + world.half[:, first.row, 0])
+    intrusion = float(np.max(np.maximum(row_right - first.wall_face, 0.0)))
+    moved = np.asarray(world.pos[:, first.row, 0])[:, -1] - start_row[:, -1]
+    at_wall = int(np.sum(first.wall_face - row_right[:, -1] < 1e-3))
   figures = dict(
       compile_s=compile_s, run_s=run_s, world_steps_per_s=batch * steps / run_s,
       body_steps_per_s=batch * steps * n / run_s, max_penetration=penetration,
       wall_intrusion=intrusion, row_moved_mean=float(np.mean(moved)), worlds_at_wall=at_wall,
-      finite=finite)
+      finite=finite, status_messages=messages)
   print(f"compile time          {compile_s:8.2f} s")
   print(f"run time              {run_s:8.2f} s")
   print(f"world-steps/s         {figures['world_steps_per_s']:12.4g}")
@@ -80,7 +134,14 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   print(f"row pushed            {figures['row_moved_mean']:8.3f} units on average; "
         f"{at_wall}/{batch} rows against the wall")
   print(f"row intrusion into wall {intrusion:10.3g}")
-  print(f"all states finite     {finite}")
+  if not messages:
+    print("status: ok")
+  for text, count in messages.items():
+    bits = [name for bit, name in _BIT_NAMES.items() if status.MESSAGES[bit] == text]
+    print(f"status {bits[0] if bits else '?'} in {count}/{batch} worlds: {text}")
+  # "finite True" alone would read as "all is well": say it only when no bit is set.
+  if not finite or not messages:
+    print(f"all states finite     {finite}")
   return figures
 
 
@@ -90,15 +151,22 @@ def main(argv=None) -> int:
   p = sub.add_parser("demo", help="simulate the built-in platformer scene in many worlds at once")
   p.add_argument("--batch", type=_positive_int, default=1024, help="worlds in parallel (default 1024)")
   p.add_argument("--steps", type=_positive_int, default=600, help="time steps of 1/60 s (default 600)")
-  p.add_argument("--chunk", type=_positive_int, default=50, help="steps per compiled call (default 50)")
-  p.add_argument("--seed", type=int, default=0, help="seed for the box masses (default 0)")
-  p.add_argument("--depth", type=int, default=None, help="chain depth K (default: from the scene)")
+  p.add_argument("--chunk", type=_positive_int, default=50,
+                 help="steps per compiled call; must divide --steps if smaller (default 50)")
+  p.add_argument("--seed", type=_nonnegative_int, default=0, help="seed for the box masses (default 0)")
+  p.add_argument("--depth", type=_nonnegative_int, default=None,
+                 help="chain depth K, 0 for pairwise Jacobi (default: from the scene)")
   p.add_argument("--iterations", type=_positive_int, default=1, help="resolution passes per step")
-  p.add_argument("--friction", type=float, default=0.3, help="Coulomb friction (default 0.3)")
-  p.add_argument("--push", type=float, default=20.0, help="player's push acceleration (default 20)")
+  p.add_argument("--friction", type=_nonnegative_float, default=0.3,
+                 help="Coulomb friction of every body (default 0.3)")
+  p.add_argument("--push", type=_finite_float, default=20.0,
+                 help="player's push acceleration (default 20)")
   p.add_argument("--no-progress", action="store_true", help="no progress bar")
   args = parser.parse_args(argv)
   if args.command == "demo":
+    chunk = min(args.chunk, args.steps)
+    if args.steps % chunk:
+      p.error(f"--steps ({args.steps}) must be a multiple of --chunk ({chunk})")
     demo(args.batch, args.steps, args.chunk, args.seed, args.depth, args.iterations,
          args.friction, args.push, progress=not args.no_progress)
   return 0
