@@ -44,7 +44,7 @@ def test_grid_finds_the_same_contacts_as_dense(seed):
 
 @given(st.integers(0, 2**31 - 1))
 def test_grid_and_dense_resolve_to_the_same_positions(seed):
-  world = room(seed).world().pad(N)
+  world = room(seed).world(gravity=(0.0, 0.0)).pad(N)
   grid, dense = jc.resolve(world, GRID), jc.resolve(world, DENSE)
   np.testing.assert_allclose(grid.pos, dense.pos, **TOL["equivariance"])
   assert int(grid.status) == 0
@@ -64,7 +64,7 @@ def test_long_floor_neither_grows_the_cell_nor_misses_contacts():
   xs = np.arange(200) * 0.5 - 49.75
   pos = np.r_[[[0.0, -0.5]], np.stack([xs, np.full(200, 0.2)], -1)]  # Boxes sunk 0.05.
   half = np.r_[[[50.0, 0.5]], np.full((200, 2), 0.25)]
-  world = jc.World.create(pos, half, np.r_[np.inf, np.ones(200)])
+  world = jc.World.create(pos, half, np.r_[np.inf, np.ones(200)], gravity=(0.0, 0.0))
   spec = broadphase.allocate(world)
   assert spec.cell < 1.0 and spec.row_size < 64
   cfg = jc.Config(gravity=False, depth=2, broadphase="grid", grid=spec)
@@ -75,7 +75,7 @@ def test_long_floor_neither_grows_the_cell_nor_misses_contacts():
 
 def test_full_cell_is_reported():
   pos = np.array([[0.2, 0.2], [0.3, 0.6], [0.7, 0.4]])  # Three boxes in cell (0, 0).
-  world = jc.World.create(pos, [0.1, 0.1], 1.0)
+  world = jc.World.create(pos, [0.1, 0.1], 1.0, gravity=(0.0, 0.0))
   spec = jc.GridSpec(origin=(0.0, 0.0), cell=1.0, shape=(4, 4), reach=0.5, cell_capacity=2)
   out = jc.resolve(world, jc.Config(gravity=False, broadphase="grid", grid=spec))
   assert int(out.status) & status.CELL_OVERFLOW
@@ -86,7 +86,7 @@ def test_full_cell_is_reported():
 
 
 def test_full_static_table_and_too_large_bodies_are_reported():
-  world = room(3).world()
+  world = room(3).world(gravity=(0.0, 0.0))
   small = jc.GridSpec(**{**SPEC.__dict__, "static_entries": 8})
   out = jc.resolve(world, GRID.replace(grid=small))
   assert int(out.status) == status.STATIC_OVERFLOW
@@ -121,7 +121,7 @@ def test_padded_inactive_bodies_never_enter_the_grid():
 
 
 def test_vmap_over_worlds_of_different_layouts():
-  worlds = [room(s, n_boxes=n).world() for s, n in ((1, 5), (2, 20), (3, 12))]
+  worlds = [room(s, n_boxes=n).world(gravity=(0.0, 0.0)) for s, n in ((1, 5), (2, 20), (3, 12))]
   batch = jc.stack(worlds, capacity=N)
   spec = broadphase.allocate(batch)
   cfg = GRID.replace(grid=spec)
@@ -134,7 +134,7 @@ def test_vmap_over_worlds_of_different_layouts():
 
 def test_bodies_outside_the_grid_are_clamped_not_lost():
   pos = np.array([[-50.0, 0.0], [-49.2, 0.0], [60.0, 60.0]])  # Far outside a 4 x 4 grid.
-  world = jc.World.create(pos, [0.5, 0.5], 1.0)
+  world = jc.World.create(pos, [0.5, 0.5], 1.0, gravity=(0.0, 0.0))
   spec = jc.GridSpec(origin=(0.0, 0.0), cell=1.0 + SKIN, shape=(4, 4), reach=0.5)
   out = jc.resolve(world, jc.Config(gravity=False, broadphase="grid", grid=spec))
   np.testing.assert_allclose(out.pos[:2, 0], [-50.1, -49.1], atol=1e-5)

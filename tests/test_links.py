@@ -51,7 +51,7 @@ def test_first_set_under_jit_and_vmap_matches_one_world_at_a_time():
 @pytest.mark.parametrize("broadphase_name", ["dense", "grid"])
 @given(seed=st.integers(0, 2**31 - 1))
 def test_compact_links_resolve_like_the_full_table(broadphase_name, seed):
-  world = mixed_room(seed).world().pad(N)
+  world = mixed_room(seed).world(gravity=(0.0, 0.0)).pad(N)
   compact = jc.resolve(world, COMPACT[broadphase_name])
   full = jc.resolve(world, FULL)
   overflowed = bool(compact.status & status.LINK_OVERFLOW)
@@ -81,7 +81,7 @@ def plank_on_boxes(boxes=6):
 
 
 def test_too_many_links_are_reported_not_silently_dropped():
-  world = plank_on_boxes(6).world()
+  world = plank_on_boxes(6).world(gravity=(0.0, 0.0))
   cfg = jc.Config(gravity=False, depth=4)
   short = jc.resolve(world, cfg.replace(links=4))
   assert short.status & status.LINK_OVERFLOW
@@ -108,7 +108,7 @@ def test_for_world_sizes_the_link_table_from_the_scene():
 def test_compact_links_have_finite_difference_gradients():
   scene = scenes.push_chain(4, overlap=0.3, wall=False, masses=[1.0, 2.0, 0.5, 1.0, 3.0],
                             overlaps=[0.1, 0.2, 0.15])
-  world = scene.world()
+  world = scene.world(gravity=(0.0, 0.0))
   cfg = jc.Config(depth=4, gravity=False, links=2)
 
   def f(pos, half):
