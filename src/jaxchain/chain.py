@@ -55,29 +55,103 @@ class Pass(NamedTuple):
 
   Attributes:
     disp: `[n, 2]` displacement; exactly 0 for immovable bodies.
-    caused: `[n, 2]` the part of it this step's motion caused (with `ref_pos`), else None.
     exhausted: bool, the K hops did not reach the end of some chain (one hop more
       would still have changed a unit mass or a push).
     overflow: bool, some body had more links in one direction than `links` keeps.
+    crushed: `[n]` bool, movable bodies in a penetrating contact whose two units both
+      lean on immovable bodies (see `displacement`).
+    links: the pass's link table (`[4, n, l]`).
+    dvel: with `vel`: `[n, 2]` velocity change from the link impulses; else None.
+    impulse: with `vel`: `[4, n, l]` compressive impulse (momentum) on each link, equal
+      in both rows of a movable pair; else None.
+    jammed: `[4, n, l]` bool, links whose two units both lean on immovable bodies.
+    shared: with `vel`: `[4, n]` friction units, the mass that slides with each body
+      along the other axis (`_link_impulses`); else None.
+    sticking: with `vel`: `[4, n, l]` bool, the links those units are made of.
   """
 
   disp: jax.Array
-  caused: jax.Array | None
   exhausted: jax.Array
   overflow: jax.Array
+  crushed: jax.Array
+  links: geometry.Links
+  dvel: jax.Array | None
+  impulse: jax.Array | None
+  jammed: jax.Array
+  shared: jax.Array | None
+  sticking: jax.Array | None
+
+
+def backing(front: geometry.Links, mass: jax.Array, immovable: jax.Array, depth: int, *,
+            track_immovable: bool = True, split: jax.Array | None = None):
+  """Unit masses and "leans on something immovable" flags, `depth` hops.
+
+  `M_d(i) = m_i + sum over j in front of i along d of M_d(j) * split_d(j)` and
+  `S_d(i) = immovable_i or any S_d(j)`, both `[4, n]`. With `split=None` (the
+  position resolver) every body in front counts whole; `jaxchain.velocity` passes
+  `1 / (bodies pushing j along d)`, which shares a body among the units that push it
+  together (mass splitting).
+
+  Returns:
+    `(unit_mass, leans, short)`: `[4, n]` each; `short` says where one hop more would
+    still change a value (the chain is longer than `depth`).
+  """
+  def hop(_, carry):
+    unit_mass, leans = carry
+    share = unit_mass if split is None else unit_mass * split
+    if not track_immovable:
+      return mass[None] + jnp.sum(jnp.where(front.mask, front.gather(share), 0.0), -1), leans
+    # One gather for both: the flag rides along as a second float channel.
+    ahead = front.gather(jnp.stack([share, leans.astype(unit_mass.dtype)]))
+    unit_mass = mass[None] + jnp.sum(jnp.where(front.mask, ahead[0], 0.0), axis=-1)
+    leans = immovable[None] | jnp.any(front.mask & (ahead[1] > 0), axis=-1)
+    return unit_mass, leans
+
+  unit_mass = jnp.broadcast_to(mass, (geometry.NUM_DIRECTIONS,) + mass.shape)
+  leans = jnp.broadcast_to(immovable, unit_mass.shape)
+  unit_mass, leans = lax.fori_loop(0, depth, hop, (unit_mass, leans))
+  more_mass, more_leans = hop(0, (unit_mass, leans))
+  return unit_mass, leans, (more_mass != unit_mass) | (more_leans != leans)
+
+
+def behind(x: jax.Array) -> jax.Array:
+  """`[..., 4, n]` -> `[..., 4, n, 1]`: for entry `(d, i, .)` of a link table, the
+  value of row i along the opposite direction (the unit behind i when i pushes along d)."""
+  return x[..., geometry.OPPOSITE, :][..., None]
 
 
 def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: jax.Array,
                  cand: Candidates, *, depth: int, skin: float, links: int | None = None,
-                 track_immovable: bool = True, ref_pos: jax.Array | None = None) -> Pass:
-  """The displacement one resolution pass applies to every body.
+                 track_immovable: bool = True, start: jax.Array | None = None,
+                 vel: jax.Array | None = None, stick: float = 0.0) -> Pass:
+  """The displacement one resolution pass applies to every body, and with `vel` the
+  contact impulses that make the velocities follow it.
 
-  With `ref_pos` (where the bodies would be without this step's motion: the step's
-  start plus the overlap recovery done so far) the pass also returns the part of
-  the displacement that the motion caused: each contact's depth less the overlap
-  the same pair has at `ref_pos`, pushed through the same units. A time step turns
-  only that part into velocity, so recovering from overlap that was already there
-  never adds energy.
+  Rules beyond DESIGN.md section 3, each mirrored by `jaxchain.reference`:
+
+  * Contact axis: from the motion since `start` for pairs separated there
+    (`geometry.contacts`).
+  * Crushing: a penetrating contact whose two units both lean on immovable bodies
+    cannot be resolved by moving a unit. Each of its two bodies, if movable, moves by
+    half its depth, alone (immovable ones still never move), so a body squeezed
+    between a floor and a descending ceiling sits centred between them, overlapping
+    both equally, and a row crushed between closing walls shares the overlap out
+    along the row over the following steps instead of being pushed through a wall.
+    Its movable bodies are reported in `Pass.crushed`.
+  * Gaps within the skin: a push across a gap moves the body in front by the push
+    less half the gap. A gap pushed from both sides is thus closed exactly once, and a
+    one-sided push leaves half of it open, so rounding cannot ratchet a stack upward.
+
+  Velocities (with `vel`): the same units and max-plus hops run on a second channel
+  whose "depth" is how fast each linked pair approaches, `(v_i - v_j) . n_d` (a pair
+  moving apart gives a negative share, like a gap). On chains and trees that channel
+  is the perfectly inelastic, mass-weighted projection of the velocities: a hit ends
+  at the common velocity and a push through a row moves the row as one. It is then
+  turned into one compressive impulse per link (`_link_impulses`), and every body's
+  velocity change is the sum of the impulses on its own links, equal and opposite on
+  the two bodies of a link: total momentum is conserved to float rounding in every
+  scene, fans included, and immovable bodies absorb what reaches them. Only relative
+  motion acts, so overlap that was there at the start adds no velocity.
 
   Args:
     pos: `[n, 2]` centres.
@@ -90,13 +164,15 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
     links: links kept per body and direction (static; `geometry.link_table`).
     track_immovable: trace the "leans on something immovable" flag (static);
       `False` is only correct when no linked body is immovable.
-    ref_pos: optional `[n, 2]` motion-free reference positions.
+    start: optional `[n, 2]` centres at the start of the step (contact axes).
+    vel: optional `[n, 2]` velocities (after gravity and input) to act on.
+    stick: linked bodies whose tangential velocities differ by at most this count as
+      moving together for friction (static).
 
   Returns:
-    A `Pass`: the displacement, the part caused by motion (with `ref_pos`), whether
-    the depth was exhausted and whether a link table overflowed.
+    A `Pass`.
   """
-  c = geometry.contacts(pos, half, cand, skin)
+  c = geometry.contacts(pos, half, cand, skin, start)
   # [4, n, l]: j in front of i along d. An immovable body's row is never needed: its
   # flag decides every split it is in, and it never moves.
   movable = ~immovable
@@ -104,43 +180,35 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   back = front.reversed()  # [4, n, l]: j behind i along d, i.e. j pushes i along d.
 
   # 2. Backing: unit mass (and immovable flag) in front of each body, K hops.
-  def backing_hop(_, carry):
-    unit_mass, leans = carry
-    if not track_immovable:
-      return mass[None] + jnp.sum(jnp.where(front.mask, front.gather(unit_mass), 0.0), -1), leans
-    # One gather for both: the flag rides along as a second float channel.
-    ahead = front.gather(jnp.stack([unit_mass, leans.astype(unit_mass.dtype)]))
-    unit_mass = mass[None] + jnp.sum(jnp.where(front.mask, ahead[0], 0.0), axis=-1)
-    leans = immovable[None] | jnp.any(front.mask & (ahead[1] > 0), axis=-1)
-    return unit_mass, leans
-
-  unit_mass = jnp.broadcast_to(mass, (geometry.NUM_DIRECTIONS,) + mass.shape)
-  leans = jnp.broadcast_to(immovable, unit_mass.shape)
-  unit_mass, leans = lax.fori_loop(0, depth, backing_hop, (unit_mass, leans))
-  # One hop more tells whether K hops reached the end of the chains (reporting only).
-  more_mass, more_leans = backing_hop(0, (unit_mass, leans))
-  unit_short = (more_mass != unit_mass) | (more_leans != leans)  # [4, n]
+  unit_mass, leans, unit_short = backing(front, mass, immovable, depth,
+                                         track_immovable=track_immovable)
 
   # 3. Split each contact. Entry (d, i, j): j is in front of i along d, i moves along
   # e = d ^ 1; i's unit is the one behind it (M_e(i)), j's the one in front of j (M_d(j)).
-  def behind(x):  # [4, n] -> [4, n, 1]: the value of row i along e.
-    return x[geometry.OPPOSITE][..., None]
-
   mass_i, leans_i = behind(unit_mass), behind(leans)
   mass_j, leans_j = front.gather(unit_mass), front.gather(leans)
   depth_now = jnp.where(front.mask, jnp.maximum(front.overlap, 0.0), 0.0)
   # Only the units a penetrating contact splits by matter for the report.
   backing_short = jnp.any((depth_now > 0) & (behind(unit_short) | front.gather(unit_short)))
+  jammed = front.mask & leans_i & leans_j
   weight = safe_divide(mass_j, mass_i + mass_j, default=0.5)
   weight = jnp.where(leans_j, 1.0, weight)
   weight = jnp.where(leans_i, 0.0, weight)
-  depths = depth_now[None]
-  if ref_pos is not None:
-    depths = jnp.stack([depth_now, jnp.maximum(depth_now - _overlap_at(ref_pos, half, front), 0.0)])
+  weight = jnp.where(jammed, 0.5, weight)
+  crushed = movable & jnp.any(jammed & (depth_now > 0), axis=(0, 2))
   # [k, 4, n, l]: how far i is pushed along e by this contact beyond j's own push. Across
-  # a gap (a link within the skin) i moves only once j has closed it: share = -gap.
-  share = jnp.where(front.overlap[None] > 0, depths * weight[None], front.overlap[None])
-  share = share[:, geometry.OPPOSITE]  # Rows of `back`: i pushed along d by j behind it.
+  # a gap (a link within the skin) i moves only once j has closed half of it. A crushed
+  # contact moves its two bodies only, half its depth each, not their units (which
+  # lean on immovable bodies): a crush spreads over the jammed row step by step.
+  shares = [jnp.where(front.overlap > 0, jnp.where(jammed, 0.0, depth_now * weight),
+                      0.5 * front.overlap)]
+  crush_push = jnp.max(jnp.where(jammed, 0.5 * depth_now, 0.0), axis=-1, initial=0.0)
+  crush_push = crush_push[geometry.OPPOSITE]
+  if vel is not None:
+    m_dir = _along(vel)
+    approach = jnp.where(front.mask, m_dir[..., None] - front.gather(m_dir), 0.0)
+    shares.append(jnp.where(approach > 0, approach * jnp.where(jammed, 0.0, weight), approach))
+  share = jnp.stack(shares)[:, geometry.OPPOSITE]  # Rows of `back`: i pushed along d by j.
 
   # 4. Forward push, K + 1 hops of max-plus along each direction.
 
@@ -148,22 +216,97 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
     pushed = jnp.where(back.mask, back.gather(disp) + share, 0.0)
     return jnp.where(movable[None, None], jnp.max(pushed, axis=-1, initial=0.0), 0.0)
 
-  disp = jnp.zeros((depths.shape[0],) + unit_mass.shape, pos.dtype)
+  disp = jnp.zeros((share.shape[0],) + unit_mass.shape, pos.dtype)
   disp = lax.fori_loop(0, depth + 1, lambda _, x: push_hop(x, share), disp)
   # Reporting only: the position channel alone decides whether a push was cut short.
   push_short = jnp.any(push_hop(disp[:1], share[:1]) != disp[:1])
   exhausted = lax.stop_gradient(backing_short | push_short)
+  disp = disp.at[0].set(jnp.where(movable[None], jnp.maximum(disp[0], crush_push), 0.0))
   net = jnp.stack([disp[:, 0] - disp[:, 1], disp[:, 2] - disp[:, 3]], axis=-1)  # [k, n, 2]
-  return Pass(net[0], net[1] if ref_pos is not None else None, exhausted, overflow)
+  if vel is None:
+    return Pass(net[0], exhausted, overflow, crushed, front, None, None, jammed, None, None)
+  # Links whose two bodies slide past each other slower than `stick` move
+  # together along the other axis: they form the units friction moves.
+  t_dir = _along(vel[:, ::-1])  # Tangential velocity: y for links along x, x along y.
+  sliding = jnp.where(front.mask, t_dir[..., None] - front.gather(t_dir), 0.0)
+  sticking = front.mask & (jnp.abs(sliding) <= stick)
+  impulse, shared, tree = _link_impulses(net[1], front, mass, leans, jammed, sticking, depth)
+  # Where the impulses agree with the chain (trees) take the chain's own velocity
+  # change: the same value, without the rounding of a light body passing on a heavy
+  # one's impulse (a difference of two large numbers). Elsewhere (fans) the impulses,
+  # which conserve momentum exactly.
+  change = jnp.where(tree[:, None], net[1],
+                     apply_impulses(impulse, safe_divide(jnp.ones_like(mass), mass)))
+  # Energy guard: the work the impulses do on the relative velocity must at least pay
+  # for the kinetic energy they add back; each movable pair is listed twice, a pair
+  # with an immovable body once. Scale down (per world) if not: never seen on chains,
+  # stacks or rooms, but not proven for every graph of links.
+  fixed = jnp.broadcast_to(immovable.astype(pos.dtype), unit_mass.shape)
+  once = jnp.where(front.gather(fixed) > 0, 1.0, 0.5)
+  work = jnp.sum(impulse * approach * once)
+  kinetic = jnp.sum(mass[:, None] * change * change)
+  scale = jnp.where(kinetic <= 2 * work, 1.0, jnp.clip(safe_divide(work, kinetic), 0.0, 1.0))
+  return Pass(net[0], exhausted, overflow, crushed, front, scale * change, scale * impulse, jammed,
+              shared, sticking)
 
 
-def _overlap_at(ref_pos: jax.Array, half: jax.Array, links: geometry.Links) -> jax.Array:
-  """`[4, n, l]` penetration each linked pair has at `ref_pos`, measured along the
-  link's axis (0 where the pair does not overlap there)."""
-  o = geometry.overlap(ref_pos[None, :, None], half[None, :, None], links.gather_bodies(ref_pos),
-                       links.gather_bodies(half))
-  o_axis, o_other = geometry.along_axis(o, geometry.ALONG_Y)
-  return jnp.where(links.mask & (o_other > 0), jnp.maximum(o_axis, 0.0), 0.0)
+def _along(x: jax.Array) -> jax.Array:
+  """`[n, 2]` -> `[4, n]`: the component along each direction (+x, -x, +y, -y)."""
+  return jnp.stack([x[:, 0], -x[:, 0], x[:, 1], -x[:, 1]])
+
+
+def _link_impulses(change: jax.Array, front: geometry.Links, mass: jax.Array,
+                   leans: jax.Array, jammed: jax.Array, sticking: jax.Array, depth: int):
+  """One compressive impulse per link that carries the velocity changes `change`.
+
+  The impulse through link (i, j) along d is the momentum change of everything j
+  pushes along d (j and the bodies in front of it, `Q_d(j) = m_j change_d(j) + sum
+  over j's front of Q / pushers`, a body shared by several pushers split equally
+  among them), or, where that side leans on an immovable body (which absorbs an
+  unknown part), the same sum over i's side along e. Where both sides are free the
+  smaller of the two is taken; a jammed link carries none. On a tree both sides agree
+  and the impulses reproduce `change` exactly.
+
+  The same hops also give the friction units: `F_d(i) = m_i + sum over i's front,
+  through sticking links only, of F_d(j) / (j's sticking pushers)`, the mass that
+  slides with i along the other axis (`jaxchain.velocity.friction`).
+
+  Returns:
+    `(impulse, units, tree)`: `[4, n, l]` impulses (momentum), `>= 0`, equal in the
+    rows of both bodies; `[4, n]` friction units; `[n]` bool, bodies all of whose links
+    got the same impulse from both sides (as on a tree).
+  """
+  dtype = mass.dtype
+  count = jnp.sum(front.mask, axis=-1).astype(dtype)  # [4, n]: c_d(i).
+  split = safe_divide(jnp.ones_like(count), count)[geometry.OPPOSITE]  # 1 / c_e(j) at (d, j).
+  stick_count = jnp.sum(sticking, axis=-1).astype(dtype)
+  stick_split = safe_divide(jnp.ones_like(count), stick_count)[geometry.OPPOSITE]
+  own = jnp.stack([mass[None] * _along(change), jnp.broadcast_to(mass, count.shape)])
+  mask = jnp.stack([front.mask, sticking])
+
+  def hop(_, carry):
+    q, units = carry
+    ahead = front.gather(jnp.stack([jnp.where(leans, 0.0, q * split), units * stick_split]))
+    total = own + jnp.sum(jnp.where(mask, ahead, 0.0), axis=-1)
+    return total[0], total[1]
+
+  q, units = lax.fori_loop(0, depth, hop, (own[0], own[1]))
+  r = q * split  # Momentum per pusher.
+  r_j, r_i = front.gather(r), behind(r)
+  leans_j, leans_i = front.gather(leans), behind(leans)
+  both = jnp.minimum(r_j, r_i)
+  impulse = jnp.where(leans_j, r_i, jnp.where(leans_i, r_j, both))
+  # Where both sides are free the two sums agree on a tree (up to rounding).
+  agree = leans_j | leans_i | (jnp.abs(r_j - r_i) <= 1e-5 * jnp.maximum(jnp.abs(r_j), jnp.abs(r_i)))
+  ok = jnp.all(agree | ~front.mask, axis=(0, 2))
+  return jnp.where(front.mask & ~jammed, jnp.maximum(impulse, 0.0), 0.0), units, ok
+
+
+def apply_impulses(impulse: jax.Array, inv_mass: jax.Array) -> jax.Array:
+  """`[n, 2]` velocity change from compressive link impulses `[4, n, l]`:
+  entry `(d, i, .)` pushes i against d."""
+  total = jnp.sum(impulse, axis=-1)  # [4, n]
+  return inv_mass[:, None] * jnp.stack([total[1] - total[0], total[3] - total[2]], axis=-1)
 
 
 def measure(pos: jax.Array, half: jax.Array, movable: jax.Array, cand: Candidates, *,

@@ -51,25 +51,42 @@ def along_axis(o: jax.Array, use_y: jax.Array) -> tuple[jax.Array, jax.Array]:
   return jnp.where(use_y, o[..., 1], o[..., 0]), jnp.where(use_y, o[..., 0], o[..., 1])
 
 
-def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float) -> Contacts:
+def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
+             start: jax.Array | None = None) -> Contacts:
   """Contacts of every candidate pair.
 
-  The contact axis is the axis of smaller overlap (ties go to x). Along it the
-  partner j lies in direction `sign(p_j - p_i)`; coincident centres go by index:
-  the body with the larger index lies in the positive direction. That tie rule is
-  the only place body order matters.
+  The contact axis of a pair that overlapped at `start` (or of every pair, without
+  `start`) is the axis of smaller overlap (ties go to x). A pair that was separated at
+  `start` (not overlapping along both axes; touching counts as separated) takes the
+  axis along which the motion from `start` to `pos` closed the gap last: its time of
+  impact. That is the axis the two boxes met along, so a box falling onto the edge of
+  another lands on it instead of being pushed sideways (`impact_axis`).
+
+  Along the contact axis the partner j lies in direction `sign(p_j - p_i)`, measured
+  at `start` for a pair separated there (so a fast pair is resolved back to the side
+  it came from) and at `pos` otherwise; coincident centres go by index: the body with
+  the larger index lies in the positive direction. That tie rule is the only place
+  body order matters.
 
   Args:
     pos: `[n, 2]` centres.
     half: `[n, 2]` half-extents.
     cand: candidate table with `[n, m]` entries.
     skin: gap below which separated bodies still count as linked.
+    start: optional `[n, 2]` centres at the start of the step.
   """
   n = pos.shape[0]
   pos_j, half_j = cand.gather_bodies(pos), cand.gather_bodies(half)
   delta = pos_j - pos[:, None, :]
   o = overlap(pos[:, None, :], half[:, None, :], pos_j, half_j)
   use_y = o[..., 1] < o[..., 0]
+  if start is not None:
+    start_j = cand.gather_bodies(start)
+    delta0 = start_j - start[:, None, :]
+    o0 = overlap(start[:, None, :], half[:, None, :], start_j, half_j)
+    separated = jnp.min(o0, axis=-1) <= 0
+    use_y = jnp.where(separated, impact_axis(o0, o, use_y), use_y)
+    delta = jnp.where(separated[..., None], delta0, delta)
   o_axis, o_other = along_axis(o, use_y)
   d_axis, _ = along_axis(delta, use_y)
   self_idx = jnp.arange(n, dtype=jnp.int32)[:, None]
@@ -79,6 +96,26 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float) -> 
   depth = jnp.where(link, jnp.maximum(o_axis, 0.0), 0.0)
   return Contacts(link=link, direction=direction, depth=depth, overlap=o_axis)
 
+
+def impact_axis(o0: jax.Array, o1: jax.Array, tie: jax.Array) -> jax.Array:
+  """Whether a pair separated at the start met along y: per-axis overlaps `o0` at the
+  start and `o1` now (`[..., 2]`), moving linearly in between.
+
+  Along each axis the projections start overlapping at the fraction
+  `t = -o0 / (o1 - o0)` of the motion (0 if they already overlapped, and later than
+  any fraction if they still do not: that axis still separates them). The boxes meet
+  when the later of the two does, so that is the contact axis. Equal times take `tie`
+  (the smaller-overlap rule). Gradient-safe: the division is guarded.
+  """
+  closing = o1 - o0
+  t = jnp.where(o0 > 0, 0.0, _safe_ratio(-o0, closing))
+  t = jnp.where((o0 <= 0) & (o1 <= 0), 2.0, t)  # Still apart along this axis.
+  return jnp.where(t[..., 1] == t[..., 0], tie, t[..., 1] > t[..., 0])
+
+
+def _safe_ratio(num: jax.Array, den: jax.Array) -> jax.Array:
+  ok = den > 0
+  return jnp.where(ok, num / jnp.where(ok, den, 1.0), 2.0)
 
 
 @jax.tree_util.register_dataclass

@@ -40,24 +40,45 @@ TOL = 1e-9  # Penetration below this counts as resolved.
 class _Scene:
   """Positions being resolved, with the contact geometry of the seed."""
 
-  def __init__(self, pos, half, mass, skin):
+  def __init__(self, pos, half, mass, skin, start=None):
     self.pos = np.array(pos, dtype=np.float64)
     self.half = np.asarray(half, dtype=np.float64)
     self.mass = np.asarray(mass, dtype=np.float64)
     self.skin = skin
+    self.start = None if start is None else np.asarray(start, dtype=np.float64)
     self.n = len(self.pos)
 
   def contact(self, a: int, b: int):
     """(axis, sign, overlap along axis, overlap along the other axis) from a to b:
-    b lies in direction `sign` along `axis` from a."""
+    b lies in direction `sign` along `axis` from a.
+
+    The axis is the one of smaller overlap (x on a tie), except for a pair that was
+    separated at `start` (not overlapping along both axes): then it is the axis along
+    which the gap closed last on the straight path from `start` to now (its time of
+    impact), and the side is the one b lay on at `start`.
+    """
     delta = self.pos[b] - self.pos[a]
     o = self.half[a] + self.half[b] - np.abs(delta)
     axis = 1 if o[1] < o[0] else 0
+    if self.start is not None:
+      delta0 = self.start[b] - self.start[a]
+      o0 = self.half[a] + self.half[b] - np.abs(delta0)
+      if min(o0) <= 0:  # Separated at the start: the axis of the later time of impact.
+        t = [0.0 if o0[k] > 0 else 2.0 if o[k] <= 0 else -o0[k] / (o[k] - o0[k])
+             for k in range(2)]
+        if t[0] != t[1]:
+          axis = 1 if t[1] > t[0] else 0
+        delta = delta0
     if delta[axis] > 0 or (delta[axis] == 0 and b > a):
       sign = 1.0
     else:
       sign = -1.0
     return axis, sign, o[axis], o[1 - axis]
+
+  def linked(self, a: int, b: int) -> bool:
+    """Whether a and b touch (within the skin) or overlap along their contact axis."""
+    _, _, o_axis, o_other = self.contact(a, b)
+    return o_other > 0 and o_axis >= -self.skin
 
   def penetrating(self, a: int, b: int) -> bool:
     _, _, o_axis, o_other = self.contact(a, b)
@@ -91,23 +112,33 @@ class _Scene:
   def push(self, i: int, axis: int, amount: float, visited: set[int]) -> None:
     """Moves body i by `amount` along axis and, first, everything it leans on in
     that direction by the same amount (the unit moves rigidly); a body it leans on
-    across a gap (within the skin) moves by the amount less the gap."""
+    across a gap (within the skin) moves by the amount less half the gap, so a gap
+    pushed from both sides closes exactly once."""
     visited.add(i)
     sign = 1.0 if amount > 0 else -1.0
     ahead = [(j, min(self.contact(i, j)[2], 0.0)) for j in self.in_front(i, axis, sign)]
     self.pos[i, axis] += amount
     for j, gap_overlap in ahead:
-      rest = abs(amount) + gap_overlap
+      rest = abs(amount) + 0.5 * gap_overlap
       if j not in visited and not np.isinf(self.mass[j]) and rest > 0:
         self.push(j, axis, sign * rest, visited)
 
-  def resolve_between(self, a: int, b: int) -> bool:
+  def resolve_between(self, a: int, b: int, crush: np.ndarray) -> bool:
     """The seed's resolveCollisionsBetween, with units and the mass correction.
-    Returns whether anything moved (not when both units are immovable)."""
+    Returns whether anything moved. When both units are immovable (a crush) each
+    movable body of the pair is to move by half the depth, alone (its unit leans on
+    something immovable): recorded in `crush[body, direction]` (the largest per
+    direction, as the JAX pass takes it) and applied at the end of the sweep, all at
+    once, so a body crushed from two sides ends centred; that does not count as
+    moving."""
     axis, sign, depth, _ = self.contact(a, b)
     mass_a, static_a = self.unit(a, axis, -sign, set())
     mass_b, static_b = self.unit(b, axis, sign, set())
     if static_a and static_b:
+      for body, direction in ((a, -sign), (b, sign)):
+        if not np.isinf(self.mass[body]):
+          d = 2 * axis + (0 if direction > 0 else 1)
+          crush[body, d] = max(crush[body, d], depth / 2)
       return False
     if static_a:
       share_a, share_b = 0.0, depth
@@ -123,7 +154,8 @@ class _Scene:
     return True
 
 
-def resolve(pos, half, mass, *, skin: float = SKIN, max_sweeps: int = 1000) -> np.ndarray:
+def resolve(pos, half, mass, *, skin: float = SKIN, max_sweeps: int = 1000,
+            start=None) -> np.ndarray:
   """Chained resolution of a world of boxes.
 
   Args:
@@ -132,6 +164,8 @@ def resolve(pos, half, mass, *, skin: float = SKIN, max_sweeps: int = 1000) -> n
     mass: `[n]` masses in `(0, inf]`; inf is immovable.
     skin: gap under which bodies still lean on each other.
     max_sweeps: cap on outer sweeps (each resolves every penetrating pair once).
+    start: optional `[n, 2]` centres at the start of the step: pairs separated there
+      take their contact axis from the motion (see `_Scene.contact`).
 
   Returns:
     `[n, 2]` float64 resolved centres.
@@ -143,13 +177,15 @@ def resolve(pos, half, mass, *, skin: float = SKIN, max_sweeps: int = 1000) -> n
     >>> reference.resolve(pos, np.full((3, 2), 0.5), [1.0, 1.0, np.inf]).round(6).tolist()
     [[-0.1, 0.0], [0.9, 0.0], [1.9, 0.0]]
   """
-  scene = _Scene(pos, half, mass, skin)
+  scene = _Scene(pos, half, mass, skin, start)
   for _ in range(max_sweeps):
     moved = False
+    crush = np.zeros((scene.n, 4))  # Per body and direction (+x, -x, +y, -y).
     for a in range(scene.n):
       for b in range(a + 1, scene.n):
-        if scene.penetrating(a, b) and scene.resolve_between(a, b):
+        if scene.penetrating(a, b) and scene.resolve_between(a, b, crush):
           moved = True
+    scene.pos += np.stack([crush[:, 0] - crush[:, 1], crush[:, 2] - crush[:, 3]], axis=-1)
     if not moved:
       break
   return scene.pos
@@ -183,3 +219,184 @@ def resolve_old(pos, half, mass, *, order=None, sweeps: int = 1) -> np.ndarray:
         scene.pos[a, axis] -= sign * share_a
         scene.pos[b, axis] += sign * (depth - share_a)
   return scene.pos
+
+
+def step(pos, vel, half, mass, *, friction=0.0, gravity=(0.0, -9.81), dt: float = 1 / 60,
+         accel=None, skin: float = SKIN, substeps: int = 1, stick: float = 1e-3,
+         tol: float = 1e-12, max_iterations: int = 10_000):
+  """One time step, as `jaxchain.step` defines it, in plain loops (float64).
+
+  Per substep of `h = dt / substeps`:
+
+  1. integrate (semi-implicit Euler): `v += accel h` (every body; that is how a
+     kinematic platform is driven), `v += g h` (movable bodies), `x_pred = x + v h`;
+  2. resolve `x_pred` with `resolve(..., start=x)`;
+  3. normal impulses on the links at the resolved positions (touching within the
+     skin or overlapping): the perfectly inelastic projection, `min sum m |v' - v|^2`
+     subject to no linked pair approaching, solved exactly by an active-set method. A link whose two units both lean on
+     immovable bodies (a crush) is left out, and a movable body with such a link takes,
+     along its axis, the mean velocity of the bodies it is linked to along that axis;
+  4. friction: one Jacobi step on units with mass splitting, as
+     `jaxchain.velocity.friction` documents: per link `clip(sliding / (k_i / F_i +
+     k_j / F_j), +-sqrt(mu_i mu_j) * normal impulse)`, with k the body's number of
+     links whose budget is positive and F each side's unit: the body and what sticks
+     to it on its far side (links sliding slower than `stick` before the contacts act),
+     which takes the impulse rigidly.
+
+  Args:
+    pos, vel, half: `[n, 2]`.
+    mass: `[n]` in `(0, inf]`.
+    friction: scalar or `[n]` coefficients.
+    gravity: `(gx, gy)`.
+    dt, substeps: the step and how many substeps it takes.
+    accel: optional `[n, 2]` input acceleration.
+    skin: link tolerance.
+    stick: links sliding slower than this form friction units.
+    tol, max_iterations: of the active-set solve.
+
+  Returns:
+    `(pos, vel)` after the step, float64.
+
+  Examples:
+    >>> import numpy as np
+    >>> from jaxchain import reference
+    >>> p, v = reference.step([[0.0, 0.0], [1.1, 0.0]], [[6.0, 0.0], [0.0, 0.0]],
+    ...                       np.full((2, 2), 0.5), [1.0, 3.0], gravity=(0.0, 0.0))
+    >>> v.round(6).tolist()  # a perfectly inelastic hit: the common velocity
+    [[1.5, 0.0], [1.5, 0.0]]
+  """
+  pos = np.array(pos, np.float64)
+  vel = np.array(vel, np.float64)
+  half = np.asarray(half, np.float64)
+  mass = np.asarray(mass, np.float64)
+  n = len(pos)
+  mu = np.broadcast_to(np.asarray(friction, np.float64), (n,))
+  accel = np.zeros((n, 2)) if accel is None else np.asarray(accel, np.float64)
+  movable = ~np.isinf(mass)
+  inv_mass = np.where(movable, 1.0 / np.where(movable, mass, 1.0), 0.0)
+  h = dt / substeps
+  for _ in range(substeps):
+    vel = vel + accel * h
+    vel[movable] += np.asarray(gravity, np.float64) * h
+    start = pos
+    pos = resolve(start + vel * h, half, mass, skin=skin, start=start)
+    scene = _Scene(pos, half, mass, skin, start)
+    links = []  # (i, j, axis, sign): j lies in direction sign along axis from i.
+    for i in range(n):
+      for j in range(i + 1, n):
+        if (movable[i] or movable[j]) and scene.linked(i, j):
+          axis, sign, _, _ = scene.contact(i, j)
+          links.append((i, j, axis, sign))
+    crushed, free = [], []
+    for i, j, axis, sign in links:
+      jammed = (scene.unit(i, axis, -sign, set())[1] and scene.unit(j, axis, sign, set())[1])
+      (crushed if jammed else free).append((i, j, axis, sign))
+    before = vel.copy()
+    normal = _inelastic(vel, inv_mass, free, tol, max_iterations)
+    vel = _crush(vel, movable, links, crushed, start_vel=vel.copy()) if crushed else vel
+    vel = _friction(vel, before, mass, mu, free, normal, stick)
+  return pos, vel
+
+
+def _inelastic(vel, inv_mass, links, tol, max_iterations) -> list[float]:
+  """The inelastic projection by an active-set method (exact in float64 on the small
+  scenes it serves): solve for the impulses that stop every link in the active set,
+  drop a link whose impulse comes out negative (it pulls), add the link that approaches
+  most at the result, until neither happens. Updates `vel` in place.
+  """
+  n_links = len(links)
+  if n_links == 0:
+    return []
+  n = len(vel)
+  jac = np.zeros((n_links, 2 * n))  # approach_k = jac[k] @ vel.ravel()
+  for k, (i, j, axis, sign) in enumerate(links):
+    jac[k, 2 * i + axis] += sign
+    jac[k, 2 * j + axis] -= sign
+  w = np.repeat(inv_mass, 2)
+  v0 = vel.ravel().copy()
+  active: list[int] = []
+  impulse = np.zeros(n_links)
+  for _ in range(max_iterations):
+    impulse = np.zeros(n_links)
+    if active:
+      ja = jac[active]
+      lam = np.linalg.lstsq((ja * w) @ ja.T, ja @ v0, rcond=None)[0]
+      impulse[active] = lam
+      if lam.min() < -tol:
+        active.pop(int(np.argmin(lam)))
+        continue
+    v = v0 - w * (jac.T @ impulse)
+    approach = jac @ v
+    approach[active] = -np.inf
+    worst = int(np.argmax(approach))
+    if approach[worst] <= tol or np.all(w[np.nonzero(jac[worst])[0]] == 0):
+      break
+    active.append(worst)
+  vel[:] = (v0 - w * (jac.T @ impulse)).reshape(vel.shape)
+  return np.maximum(impulse, 0.0).tolist()
+
+
+def _crush(vel, movable, links, crushed, start_vel):
+  """A movable body with a crushed link takes, along that link's axis, the mean
+  velocity of everything it is linked to along that axis."""
+  out = vel.copy()
+  for body in {b for i, j, _, _ in crushed for b in (i, j) if movable[b]}:
+    for axis in {a for i, j, a, _ in crushed if body in (i, j)}:
+      partners = [j if i == body else i for i, j, a, _ in links if a == axis and body in (i, j)]
+      out[body, axis] = np.mean([start_vel[p, axis] for p in partners])
+  return out
+
+
+def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
+  """Coulomb friction on units (see `jaxchain.velocity.friction`): `before` are the
+  velocities that decide which links stick (slide slower than `stick`); links sliding
+  slower than `slip` take no part."""
+  n = len(vel)
+  movable = ~np.isinf(mass)
+  sticking = [abs(before[i, 1 - a] - before[j, 1 - a]) <= stick for i, j, a, _ in links]
+
+  def ahead(q, axis, sign):  # Bodies in front of q along (axis, sign) through sticking links.
+    out = []
+    for (i, j, a, s), st in zip(links, sticking):
+      if a == axis and st:
+        if i == q and s == sign:
+          out.append(j)
+        elif j == q and s == -sign:
+          out.append(i)
+    return out
+
+  def pushers(k, axis, sign):
+    return sum(1 for q in range(n) if k in ahead(q, axis, sign))
+
+  def unit(q, axis, sign):
+    if not movable[q]:
+      return 0.0
+    return mass[q] + sum(unit(k, axis, sign) / pushers(k, axis, sign) for k in ahead(q, axis, sign))
+
+  def deliver(q, axis, sign, value, dv):
+    if not movable[q]:
+      return
+    dv[q, 1 - axis] += value
+    for k in ahead(q, axis, sign):
+      deliver(k, axis, sign, value / pushers(k, axis, sign), dv)
+
+  budgets = [np.sqrt(mu[i] * mu[j]) * lam if abs(vel[i, 1 - a] - vel[j, 1 - a]) > slip else 0.0
+             for (i, j, a, _), lam in zip(links, normal)]
+  count = np.zeros(n)
+  for (i, j, _, _), b in zip(links, budgets):
+    if b > 0:
+      count[i] += 1
+      count[j] += 1
+  dv = np.zeros_like(vel)
+  for (i, j, axis, sign), b in zip(links, budgets):
+    if b <= 0:
+      continue
+    t = 1 - axis
+    unit_i, unit_j = unit(i, axis, -sign), unit(j, axis, sign)
+    w = (count[i] / unit_i if unit_i > 0 else 0.0) + (count[j] / unit_j if unit_j > 0 else 0.0)
+    impulse = np.clip((vel[i, t] - vel[j, t]) / w, -b, b)
+    if unit_i > 0:
+      deliver(i, axis, -sign, -impulse / unit_i, dv)
+    if unit_j > 0:
+      deliver(j, axis, sign, impulse / unit_j, dv)
+  return vel + dv

@@ -18,8 +18,12 @@ DEPTH_EXHAUSTED = 1 << 4
 FAST_BODY = 1 << 5
 LINK_OVERFLOW = 1 << 6
 SWITCHED_OFF = 1 << 7
+CRUSHED = 1 << 8
 
 MESSAGES = {
+    CRUSHED: "a movable body was squeezed between units that lean on immovable bodies on "
+             "opposite sides (world.crushed says which); its overlap was split in half and "
+             "it took the mean velocity of what crushes it",
     CELL_OVERFLOW: "a grid cell held more movable bodies than Config.grid.cell_capacity; "
                    "contacts were missed (re-run Config.for_world on the current world, or "
                    "raise cell_capacity)",

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxchain import broadphase, chain, geometry, status
+from jaxchain import broadphase, chain, geometry, status, velocity
 from jaxchain.config import Config
 from jaxchain.world import World
 
@@ -33,48 +33,62 @@ class Trajectory:
   vel: jax.Array
 
 
-def _check_single(world: World, fn: str) -> None:
+def _check_single(world: World, fn: str, batch_hint: str | None = None) -> None:
   if world.pos.ndim != 2:
+    hint = batch_hint or (f"jax.vmap({fn}, in_axes=(0, None)) or "
+                          f"functools.partial(jc.{fn}, config=cfg)")
     raise ValueError(
         f"{fn}: expected a single world with pos of shape (n, 2), got {world.pos.shape}; "
-        f"for a batch use jax.vmap({fn}, in_axes=(0, None)) or functools.partial(jc.{fn}, config=cfg)")
+        f"for a batch use {hint}")
 
 
-def _resolve_positions(world: World, pos: jax.Array, config: Config,
-                       start: jax.Array | None = None):
-  """Positions after `config.iterations` chain passes, and the status bits they raised.
+def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | None = None,
+            vel: jax.Array | None = None):
+  """`config.iterations` resolution passes from `pos`.
 
-  Grid candidates are rebuilt at the start of every pass, from the positions that
-  pass starts at. With `start` (positions at the start of the step) also returns the
-  part of the displacement this step's motion caused: every pass measures the
-  overlap that was there anyway at `ref`, the start moved by the recovery part of
-  the passes so far (see `chain.displacement`).
+  Every pass builds its candidates and contacts once, at the positions it starts
+  from, and all its stages read them: the chain's positions, and with `vel` the
+  contact impulses (`chain.displacement` with `vel`), the crush rule and
+  friction, in that order. So a pass's velocities always follow its positions.
 
   Returns:
-    `(pos, status)`, or `(pos, motion_push, status)` with `start`.
+    `(pos, vel, status, crushed)` (`vel` None without `vel`).
   """
   mass = chain.body_mass(world.inv_mass, world.active)
-  immovable = ~world.movable
-  pass_fn = functools.partial(chain.displacement, half=world.half, mass=mass, immovable=immovable,
-                              depth=config.depth, skin=config.skin, links=config.links,
-                              track_immovable=config.immovable)
+  movable = world.movable
+  pass_fn = functools.partial(chain.displacement, half=world.half, mass=mass,
+                              immovable=~movable, depth=config.depth, skin=config.skin,
+                              links=config.links, track_immovable=config.immovable, start=start,
+                              stick=velocity.STICK)
 
   def one_pass(_, carry):
-    p, ref, motion, code, _ = carry
+    p, v, code, _, crushed = carry
     cand, found = broadphase.candidates(p, world, config)
-    out = pass_fn(p, cand=cand, ref_pos=None if start is None else ref)
-    if start is not None:
-      ref, motion = ref + (out.disp - out.caused), motion + out.caused
-    found = found | jnp.where(out.overflow, status.LINK_OVERFLOW, 0)
-    return p + out.disp, ref, motion, code | found, out.exhausted
+    out = pass_fn(p, cand=cand, vel=v)
+    code = code | found | jnp.where(out.overflow, status.LINK_OVERFLOW, 0)
+    crushed = crushed | out.crushed
+    if v is not None:
+      v = v + out.dvel
+      if config.immovable:
+        v, _ = velocity.crush(v, out.links, out.jammed, movable)
+      if config.has_friction:
+        v = velocity.friction(v, out.links, out.impulse, world.friction, out.shared,
+                              out.sticking, depth=config.depth)
+    return p + out.disp, v, code, out.exhausted, crushed
 
-  ref = pos if start is None else start
   zero = jnp.zeros((), jnp.int32)
-  p, _, motion, code, exhausted = lax.fori_loop(
-      0, config.iterations, one_pass, (pos, ref, jnp.zeros_like(pos), zero, jnp.zeros((), bool)))
+  init = (pos, vel, zero, jnp.zeros((), bool), jnp.zeros(world.active.shape, bool))
+  p, v, code, exhausted, crushed = lax.fori_loop(0, config.iterations, one_pass, init)
   # Only the last pass counts: earlier passes may leave work that later ones finish.
   code = code | jnp.where(exhausted, status.DEPTH_EXHAUSTED, 0)
-  return (p, code) if start is None else (p, motion, code)
+  return p, v, code, crushed
+
+
+def _finite_code(world: World, *arrays: jax.Array) -> jax.Array:
+  bad = jnp.zeros((), bool)
+  for x in arrays:
+    bad = bad | jnp.any(world.active[:, None] & ~jnp.isfinite(x))
+  return jnp.where(bad, status.NON_FINITE, 0)
 
 
 @functools.partial(jax.jit, static_argnames="config")
@@ -86,7 +100,8 @@ def resolve(world: World, config: Config) -> World:
     config: static configuration (`depth`, `iterations`, `skin`, `immovable`).
 
   Returns:
-    The world with resolved positions. Immovable and inactive bodies do not move.
+    The world with resolved positions and `crushed` set. Immovable and inactive
+    bodies do not move. A non-finite position sets `status.NON_FINITE`.
 
   Examples:
     >>> import jaxchain as jc
@@ -96,33 +111,43 @@ def resolve(world: World, config: Config) -> World:
     [-0.1, 0.9, 1.9]
   """
   _check_single(world, "resolve")
-  pos, code = _resolve_positions(world, world.pos, config)
-  return world.replace(pos=pos, status=world.status | code)
+  pos, _, code, crushed = _passes(world, world.pos, config)
+  code = code | _finite_code(world, world.pos, pos) | _crushed_code(crushed)
+  code = code | _switched_off(world, config, physics=False)
+  return dataclasses.replace(world, pos=pos, crushed=crushed, status=world.status | code)
+
+
+def _crushed_code(crushed: jax.Array) -> jax.Array:
+  return jnp.where(jnp.any(crushed), status.CRUSHED, 0)
+
+
+def _switched_off(world: World, config: Config, physics: bool = True) -> jax.Array:
+  """`SWITCHED_OFF` when the world sets values the config leaves out of the step
+  (`resolve`, with `physics=False`, uses neither friction nor gravity)."""
+  off = jnp.zeros((), bool)
+  if physics and not config.has_friction:
+    off = off | jnp.any(world.active & (world.friction > 0))
+  if physics and not config.has_gravity:
+    off = off | (jnp.any(world.gravity != 0) & jnp.any(world.movable))
+  if not config.immovable:
+    off = off | jnp.any(world.active & (world.inv_mass == 0))
+  return jnp.where(off, status.SWITCHED_OFF, 0)
 
 
 def _substep(world: World, config: Config, h: float, accel: jax.Array | None) -> World:
-  movable = world.movable[:, None]
+  """Integrate (semi-implicit Euler), then resolution passes that move the bodies
+  apart and update their velocities from the contact impulses and friction."""
   vel = world.vel
   if accel is not None:
     vel = vel + jnp.where(world.active[:, None], accel * h, 0.0)
   if config.has_gravity:
-    vel = vel + jnp.where(movable, world.gravity[None] * h, 0.0)
+    vel = vel + jnp.where(world.movable[:, None], world.gravity[None] * h, 0.0)
+  code = jnp.where(_too_fast(world, vel, h), status.FAST_BODY, 0)
   predicted = world.pos + jnp.where(world.active[:, None], vel * h, 0.0)
-  resolved, push, code = _resolve_positions(world, predicted, config, start=world.pos)
-  code = code | jnp.where(_too_fast(world, vel, h), status.FAST_BODY, 0)
-  # Position-based velocity update, perfectly inelastic: a body stopped by a contact
-  # loses its velocity into it and a pushed body moves on with its pusher. Only the
-  # push this step's motion caused counts (overlap the step started with is removed
-  # by position alone), and no resolution reverses a velocity: recovering from
-  # penetration never becomes a bounce or an explosion.
-  moved = vel + push / h
-  vel = jnp.where(vel * moved < 0, 0.0, moved)
-  if config.has_friction:
-    vel, friction_code = _friction(world, resolved, vel, push, config, h)
-    code = code | friction_code
-  bad = world.active[:, None] & ~(jnp.isfinite(resolved) & jnp.isfinite(vel))
-  code = code | jnp.where(jnp.any(bad), status.NON_FINITE, 0)
-  return world.replace(pos=resolved, vel=vel, status=world.status | code)
+  pos, vel, found, crushed = _passes(world, predicted, config, start=world.pos, vel=vel)
+  code = code | found | _finite_code(world, pos, vel) | _crushed_code(crushed)
+  return dataclasses.replace(world, pos=pos, vel=vel, crushed=world.crushed | crushed,
+                       status=world.status | code)
 
 
 def _too_fast(world: World, vel: jax.Array, h: float) -> jax.Array:
@@ -134,41 +159,12 @@ def _too_fast(world: World, vel: jax.Array, h: float) -> jax.Array:
   return jnp.any(world.active[:, None] & (jnp.abs(vel) * h >= reach))
 
 
-def _friction(world: World, pos, vel, push, config: Config, h: float):
-  """Coulomb friction, Jacobi style, per body.
-
-  The normal impulse of body i along an axis is taken as its own resolution
-  velocity change along that axis, `|push| / h`; friction reduces i's velocity
-  along the other (tangent) axis, relative to the mean tangent velocity of the
-  bodies it is linked to along the normal axis, by at most `mu` times that. A box
-  sliding at `v0` on a floor stops after about `v0**2 / (2 mu g)`.
-
-  Returns:
-    `(vel, code)`: the new velocities and `LINK_OVERFLOW` if the link table at the
-    resolved positions overflowed (the grid's bits were taken by the resolution).
-  """
-  cand, _ = broadphase.candidates(pos, world, config)
-  c = geometry.contacts(pos, world.half, cand, config.skin)
-  links, overflow = geometry.link_table(c, cand, config.links, rows=world.movable)
-  partner_vel = links.gather_bodies(vel)  # [4, n, l, 2] ([1, n, m, 2] uncompacted)
-  out = []
-  for tangent in (0, 1):  # A loop over the two axes, not over bodies.
-    normal = slice(2, 4) if tangent == 0 else slice(0, 2)  # Directions along the normal axis.
-    along_normal = links.mask[normal]  # [2, n, l]
-    v = partner_vel[..., tangent]
-    v = v[normal] if links.idx is not None else v  # Uncompacted: [1, n, m], shared.
-    count = jnp.sum(along_normal, axis=(0, 2))
-    ref = chain.safe_divide(jnp.sum(jnp.where(along_normal, v, 0.0), axis=(0, 2)),
-                            count.astype(vel.dtype))
-    rel = vel[:, tangent] - ref
-    budget = world.friction * jnp.abs(push[:, 1 - tangent]) / h
-    out.append(vel[:, tangent] - jnp.sign(rel) * jnp.minimum(jnp.abs(rel), budget))
-  vel = jnp.where(world.movable[:, None], jnp.stack(out, axis=-1), vel)
-  return vel, jnp.where(overflow, status.LINK_OVERFLOW, 0)
-
-
 def _step(world: World, config: Config, accel: jax.Array | None) -> World:
   h = config.dt / config.substeps
+  # Library code uses dataclasses.replace: World.replace validates concrete values, and
+  # under jax.disable_jit a NaN must become NON_FINITE, not an exception.
+  world = dataclasses.replace(world, crushed=jnp.zeros_like(world.crushed),  # ORed over substeps.
+                              status=world.status | _switched_off(world, config))
   if config.substeps == 1:
     return _substep(world, config, h, accel)
   return lax.fori_loop(0, config.substeps, lambda _, w: _substep(w, config, h, accel), world)
@@ -201,8 +197,20 @@ def step(world: World, config: Config, accel: jax.Array | None = None) -> World:
 
 
 def make_step(config: Config):
-  """Returns `step_fn(world, accel=None) -> world`, jitted once for `config`."""
-  return jax.jit(lambda world, accel=None: _step(world, config, accel))
+  """Returns `step_fn(world, accel=None) -> world`, jitted once for `config`.
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> step_fn = jc.make_step(jc.Config())
+    >>> w = step_fn(jc.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0))
+    >>> round(float(w.vel[0, 1]), 4)
+    -0.1635
+  """
+  def step_fn(world: World, accel: jax.Array | None = None) -> World:
+    _check_single(world, "step_fn", batch_hint="jax.vmap(step_fn), with step_fn = jc.make_step(cfg)")
+    return _step(world, config, accel)
+
+  return jax.jit(step_fn)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "n_steps"))
