@@ -147,11 +147,15 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   moving apart gives a negative share, like a gap). On chains and trees that channel
   is the perfectly inelastic, mass-weighted projection of the velocities: a hit ends
   at the common velocity and a push through a row moves the row as one. It is then
-  turned into one compressive impulse per link (`_link_impulses`), and every body's
-  velocity change is the sum of the impulses on its own links, equal and opposite on
-  the two bodies of a link: total momentum is conserved to float rounding in every
-  scene, fans included, and immovable bodies absorb what reaches them. Only relative
-  motion acts, so overlap that was there at the start adds no velocity.
+  turned into one compressive impulse per link (`_link_impulses`). Where several
+  bodies push one together (a fan, where the max-plus channel is not the projection
+  and would lose momentum) a body's velocity change is the sum of the impulses on its
+  own links, equal and opposite on the two bodies of a link, so total momentum is
+  conserved to float rounding in every scene; on chains and trees the impulses and
+  the channel agree and the channel's value is used (free of the rounding the impulse
+  sums carry when a light body passes on a heavy one's impulse). Immovable bodies
+  absorb what reaches them. Only relative velocities act, so overlap that was there at
+  the start adds no velocity.
 
   Args:
     pos: `[n, 2]` centres.
@@ -194,7 +198,6 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   weight = safe_divide(mass_j, mass_i + mass_j, default=0.5)
   weight = jnp.where(leans_j, 1.0, weight)
   weight = jnp.where(leans_i, 0.0, weight)
-  weight = jnp.where(jammed, 0.5, weight)
   crushed = movable & jnp.any(jammed & (depth_now > 0), axis=(0, 2))
   # [k, 4, n, l]: how far i is pushed along e by this contact beyond j's own push. Across
   # a gap (a link within the skin) i moves only once j has closed half of it. A crushed
