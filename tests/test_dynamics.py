@@ -534,3 +534,58 @@ def test_resolve_centres_a_box_crushed_between_walls_like_the_reference():
   np.testing.assert_allclose(got.pos, want, **TOL["exact_f32"])
   np.testing.assert_allclose(got.pos[1], [0.9, 0.0], **TOL["exact_f32"])
   assert got.crushed.tolist() == [False, True, False] and got.status & jc.status.CRUSHED
+
+
+# --- Counterexamples found by hunting (each was a failure before its fix) ------------
+
+
+def test_box_slides_across_the_seam_between_two_floor_tiles():
+  # Resting on tile 1 (faces level along y), it rides onto tile 2 instead of hitting its
+  # side: no ghost collision at the seam.
+  for seam in (2.0, 2.0 + 1e-4, 2.0 - 1e-4):
+    world = jc.World.create([[0.0, 0.5], [0.0, -0.5], [seam + 2.0, -0.5]],
+                            [[0.5, 0.5], [2.0, 0.5], [2.0, 0.5]], [1.0, INF, INF],
+                            vel=[[2.0, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    final, traj = jc.rollout(world, jc.Config(friction=False), 120)
+    np.testing.assert_allclose(traj.vel[:, 0, 0], 2.0, rtol=1e-6)
+    np.testing.assert_allclose(final.pos[0], [4.0, 0.5], atol=1e-4)
+
+
+def test_box_touching_a_side_exactly_is_pushed_sideways_not_lifted():
+  # Heavy box sliding at -3, exactly touching the side of a box on the floor: x contact.
+  world = jc.World.create([[2.0, 0.52], [1.0, 0.5], [0.0, -0.5]],
+                          [[0.5, 0.5], [0.5, 0.5], [10.0, 0.5]], [100.0, 1.0, INF],
+                          vel=[[-3.0, 0.0], [0.0, 0.0], [0.0, 0.0]])
+  before = energy(world)
+  w = jc.step(world, jc.Config(friction=False))
+  assert float(w.pos[0, 1]) < 0.53  # Not lifted on top.
+  np.testing.assert_allclose(w.vel[:2, 0], -300.0 / 101.0, rtol=1e-5)  # Inelastic push.
+  assert energy(w) <= before + energy_tolerance(world)
+
+
+@pytest.mark.parametrize("masses", [(500.0, 1e4, 2.0, 4e3), (1.0, 1.0, 1.0, 1.0), (1e4, 1e4, 1.0, 1e4)])
+def test_two_boxes_landing_on_a_light_plank_gain_no_energy_and_launch_nothing(masses):
+  # A fan: two boxes fall onto a thin plank resting on a box (all free, gravity on).
+  world = jc.World.create([[-0.45, 1.101], [0.45, 1.15], [0.0, 0.6], [0.0, 0.0]],
+                          [[0.4, 0.4], [0.4, 0.4], [0.8, 0.1], [0.5, 0.5]], list(masses),
+                          vel=[[0.0, -8.0], [0.0, -10.0], [0.0, -2.0], [0.0, -2.0]]).pad(N_ROOM)
+  w = step_room(world)
+  assert energy(w) <= energy(world) + energy_tolerance(world)
+  np.testing.assert_allclose(momentum(w)[1], momentum(world)[1] - float(np.sum(masses)) * G * DT,
+                             rtol=1e-5)
+  assert float(w.vel[2, 1]) <= 0.5  # The plank is not thrown up into the boxes landing on it.
+
+
+@pytest.mark.parametrize("field, value", [("half", jnp.nan), ("half", 0.0), ("inv_mass", jnp.nan),
+                                          ("inv_mass", -1.0), ("friction", jnp.nan),
+                                          ("friction", -0.5), ("gravity", jnp.nan)])
+def test_a_parameter_out_of_its_domain_inside_traced_code_is_reported(field, value):
+  world = jc.World.create([[0.0, 0.5], [0.0, -0.5]], [[0.5, 0.5], [5.0, 0.5]], [1.0, INF],
+                          friction=0.5)
+
+  def corrupt(w):
+    x = getattr(w, field)
+    return w.replace(**{field: x.at[(0,) * x.ndim].set(value) if x.ndim else x})
+
+  out = jax.jit(lambda w: jc.step(corrupt(w), ROOM))(world)
+  assert out.status & jc.status.NON_FINITE

@@ -85,7 +85,7 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
     delta0 = start_j - start[:, None, :]
     o0 = overlap(start[:, None, :], half[:, None, :], start_j, half_j)
     separated = jnp.min(o0, axis=-1) <= 0
-    use_y = jnp.where(separated, impact_axis(o0, o, use_y), use_y)
+    use_y = jnp.where(separated, impact_axis(o0, o, use_y, skin), use_y)
     delta = jnp.where(separated[..., None], delta0, delta)
   o_axis, o_other = along_axis(o, use_y)
   d_axis, _ = along_axis(delta, use_y)
@@ -97,20 +97,27 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
   return Contacts(link=link, direction=direction, depth=depth, overlap=o_axis)
 
 
-def impact_axis(o0: jax.Array, o1: jax.Array, tie: jax.Array) -> jax.Array:
+def impact_axis(o0: jax.Array, o1: jax.Array, tie: jax.Array, skin: float) -> jax.Array:
   """Whether a pair separated at the start met along y: per-axis overlaps `o0` at the
   start and `o1` now (`[..., 2]`), moving linearly in between.
 
-  Along each axis the projections start overlapping at the fraction
-  `t = -o0 / (o1 - o0)` of the motion (0 if they already overlapped, and later than
-  any fraction if they still do not: that axis still separates them). The boxes meet
-  when the later of the two does, so that is the contact axis. Equal times take `tie`
-  (the smaller-overlap rule). Gradient-safe: the division is guarded.
+  A pair whose faces were level along one axis at the start (`|o0| <= skin` there:
+  resting on, or sliding along, each other's face) keeps that axis: a box sliding over
+  the seam between two floor tiles of one height rides onto the next tile instead of
+  hitting its side (a "ghost collision"), and one touching a box's side pushes it.
+  Otherwise, along each axis the projections start overlapping at the fraction
+  `t = -o0 / (o1 - o0)` of the motion (0 if they already overlapped, and later than any
+  fraction if they still do not: that axis still separates them). The boxes meet when
+  the later of the two does, so that is the contact axis. Ties (level along both axes,
+  or equal times) take `tie` (the smaller-overlap rule). Gradient-safe: the division is
+  guarded.
   """
   closing = o1 - o0
   t = jnp.where(o0 > 0, 0.0, _safe_ratio(-o0, closing))
   t = jnp.where((o0 <= 0) & (o1 <= 0), 2.0, t)  # Still apart along this axis.
-  return jnp.where(t[..., 1] == t[..., 0], tie, t[..., 1] > t[..., 0])
+  by_time = jnp.where(t[..., 1] == t[..., 0], tie, t[..., 1] > t[..., 0])
+  level = jnp.abs(o0) <= skin
+  return jnp.where(level[..., 0] == level[..., 1], by_time, level[..., 1])
 
 
 def _safe_ratio(num: jax.Array, den: jax.Array) -> jax.Array:

@@ -54,8 +54,10 @@ class _Scene:
 
     The axis is the one of smaller overlap (x on a tie), except for a pair that was
     separated at `start` (not overlapping along both axes): then it is the axis along
-    which the gap closed last on the straight path from `start` to now (its time of
-    impact), and the side is the one b lay on at `start`.
+    which their faces were level at `start` (overlap within the skin) if that holds for
+    exactly one axis, else the axis along which the gap closed last on the straight
+    path from `start` to now (its time of impact); the side is the one b lay on at
+    `start`.
     """
     delta = self.pos[b] - self.pos[a]
     o = self.half[a] + self.half[b] - np.abs(delta)
@@ -63,10 +65,13 @@ class _Scene:
     if self.start is not None:
       delta0 = self.start[b] - self.start[a]
       o0 = self.half[a] + self.half[b] - np.abs(delta0)
-      if min(o0) <= 0:  # Separated at the start: the axis of the later time of impact.
+      if min(o0) <= 0:  # Separated at the start.
+        level = [abs(o0[k]) <= self.skin for k in range(2)]
         t = [0.0 if o0[k] > 0 else 2.0 if o[k] <= 0 else -o0[k] / (o[k] - o0[k])
              for k in range(2)]
-        if t[0] != t[1]:
+        if level[0] != level[1]:  # Faces level along one axis: it keeps that axis.
+          axis = 1 if level[1] else 0
+        elif t[0] != t[1]:  # Else the axis of the later time of impact.
           axis = 1 if t[1] > t[0] else 0
         delta = delta0
     if delta[axis] > 0 or (delta[axis] == 0 and b > a):

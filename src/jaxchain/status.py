@@ -21,9 +21,6 @@ SWITCHED_OFF = 1 << 7
 CRUSHED = 1 << 8
 
 MESSAGES = {
-    CRUSHED: "a movable body was squeezed between units that lean on immovable bodies on "
-             "opposite sides (world.crushed says which); its overlap was split in half and "
-             "it took the mean velocity of what crushes it",
     CELL_OVERFLOW: "a grid cell held more movable bodies than Config.grid.cell_capacity; "
                    "contacts were missed (re-run Config.for_world on the current world, or "
                    "raise cell_capacity)",
@@ -32,8 +29,10 @@ MESSAGES = {
                      "Config.for_world, or raise those capacities)",
     BODY_TOO_LARGE: "a movable body is larger than Config.grid.reach allows; its contacts may "
                     "be missed (re-run Config.for_world on this world)",
-    NON_FINITE: "the state went NaN or inf (check inputs: accelerations, dt, coordinates far "
-                "beyond float precision)",
+    NON_FINITE: "the state went NaN or inf, or a parameter left its domain (NaN or "
+                "non-positive half-extent, NaN or negative inverse mass or friction, NaN "
+                "gravity); check inputs: accelerations, dt, coordinates far beyond float "
+                "precision, values set inside traced code",
     DEPTH_EXHAUSTED: "a chain was longer than Config.depth could resolve in the last pass; "
                      "penetration may be left (raise depth or iterations)",
     FAST_BODY: "a body moved farther in one substep than it and the thinnest body are thick, "
@@ -44,6 +43,9 @@ MESSAGES = {
     SWITCHED_OFF: "the World sets friction or gravity values (or holds immovable bodies) that "
                   "the Config switched off (Config.friction / Config.gravity / Config.immovable "
                   "is False); they were ignored: use Config.for_world or switch them on",
+    CRUSHED: "a movable body was squeezed between units that lean on immovable bodies on "
+             "opposite sides (world.crushed says which); its overlap was split in half and "
+             "it took the mean velocity of what crushes it",
 }
 
 

@@ -73,7 +73,7 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
         v, _ = velocity.crush(v, out.links, out.jammed, movable)
       if config.has_friction:
         v = velocity.friction(v, out.links, out.impulse, world.friction, out.shared,
-                              out.sticking, depth=config.depth)
+                              out.sticking, mass, depth=config.depth)
     return p + out.disp, v, code, out.exhausted, crushed
 
   zero = jnp.zeros((), jnp.int32)
@@ -85,9 +85,17 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
 
 
 def _finite_code(world: World, *arrays: jax.Array) -> jax.Array:
-  bad = jnp.zeros((), bool)
+  """`NON_FINITE` if a state array (`[n, 2]`) of an active body is NaN or inf, or if a
+  parameter is out of its domain: half-extents not finite and `> 0`, inverse masses
+  or friction not finite and `>= 0`, gravity not finite (values that traced code, or
+  `dataclasses.replace`, can put in a World without `World.replace`'s checks)."""
+  active = world.active
+  bad = jnp.any(~jnp.isfinite(world.gravity))
+  bad = bad | jnp.any(active[:, None] & ~(jnp.isfinite(world.half) & (world.half > 0)))
+  for p in (world.inv_mass, world.friction):
+    bad = bad | jnp.any(active & ~(jnp.isfinite(p) & (p >= 0)))
   for x in arrays:
-    bad = bad | jnp.any(world.active[:, None] & ~jnp.isfinite(x))
+    bad = bad | jnp.any(active[:, None] & ~jnp.isfinite(x))
   return jnp.where(bad, status.NON_FINITE, 0)
 
 

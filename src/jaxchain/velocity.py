@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxchain import geometry
+from jaxchain import chain, geometry
 from jaxchain.chain import safe_divide
 
 # Linked bodies whose tangential velocities differ by at most this (units per second)
@@ -36,7 +36,7 @@ SLIP = 1e-6
 
 
 def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficient: jax.Array,
-             shared: jax.Array, sticking: jax.Array, *, depth: int) -> jax.Array:
+             shared: jax.Array, sticking: jax.Array, mass: jax.Array, *, depth: int) -> jax.Array:
   """Coulomb friction impulses per link, acting on units, with mass splitting.
 
   Link `(d, i, j)` rubs along the other axis. What moves with i there is i's unit on
@@ -44,12 +44,14 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
   boxes stacked on a box that slides on a floor), and what moves with j is j's unit
   `shared[d, j]`, both made of the links that stick (whose bodies slide past each
   other slower than `STICK`; a box sliding under another is not part of its unit). The
-  impulse is the one that stops the two units' relative sliding,
-  each unit counted with mass `S / k` (k: the body's active friction links, those
-  with a normal impulse that slide faster than `SLIP`; Tonge et al. 2012), clipped to `mu_pair * normal`; each unit takes it rigidly, its bodies
-  reached in `depth` hops as the resolver reaches them (a body on several
-  supports takes the mean of theirs, the share its unit mass counted). So a sliding
-  stack stops as one on its floor's friction, and momentum is conserved.
+  impulse is the one that stops the two units' relative sliding, each unit counted
+  with mass `S / k` (k: the body's active friction links, those with a normal impulse
+  that slide faster than `SLIP`; Tonge et al. 2012), clipped to `mu_pair * normal`;
+  each unit takes it rigidly, its bodies reached in `depth` hops as the resolver
+  reaches them (a body on several supports takes the mean of theirs, the share its
+  unit mass counted). So a sliding stack stops as one on its floor's friction, and
+  momentum is conserved. An energy guard (`chain.energy_scale`) scales the update
+  down, per world, if it would ever add energy beyond what moving platforms give.
 
   Args:
     vel: `[n, 2]` velocities after the normal impulses.
@@ -59,6 +61,7 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
       `sqrt(mu_i mu_j)` (as Box2D does): 0 if either is 0.
     shared: `[4, n]` friction units (`chain.Pass.shared`), 0 for immovable bodies.
     sticking: `[4, n, l]` bool, the links those units are made of (`chain.Pass.sticking`).
+    mass: `[n]` masses of movable bodies, 0 for the others (`chain.body_mass`).
     depth: hops a unit's motion travels (static).
 
   Returns:
@@ -90,7 +93,11 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
 
   total = lax.fori_loop(0, depth, hop, jnp.where(movable, source, 0.0))
   # Units along x (e = 0, 1) slide along y, units along y along x.
-  return vel + jnp.stack([total[2] + total[3], total[0] + total[1]], axis=-1)
+  change = jnp.stack([total[2] + total[3], total[0] + total[1]], axis=-1)
+  # Energy guard, as for the normal impulses: friction may only take energy, beyond
+  # what a moving platform gives through its links.
+  scale = chain.energy_scale(vel, change, impulse, front, mass, mass == 0, tangent)
+  return vel + scale * change
 
 
 def _safe_sqrt(x: jax.Array) -> jax.Array:
