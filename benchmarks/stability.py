@@ -484,9 +484,10 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> No
       "`Config.for_world` picks substeps from the initial speeds (plus one step of gravity, "
       "none here) with a 1.25 safety factor. "
       "*passed*: the final centre x is beyond the wall's centre. Max x <= 2.5 means stopped at "
-      "the wall. A box that tunnels is pushed out on the far side of the wall, and the "
-      "velocity update adds that push to its speed (*final speed* above the launch speed): "
-      "those runs break the energy bound.", ""]
+      "the wall. A box that tunnels is pushed out on the far side of the wall (or, while its "
+      "centre has not crossed the wall's, back); *final speed* shows what the velocity "
+      "update made of it (velocities come from contact impulses, not from the push, so a "
+      "tunnelling box gains no speed).", ""]
   lines += table("speed | substeps | travel per substep | < 0.55 | max x | final x | final speed | passed | FAST_BODY",
                  groups["tunnel"])
   codes = s["codes"]
@@ -588,7 +589,7 @@ def bounds_paragraph(groups: dict, ulp: float, s: dict) -> str:
       f"With depth below the stack height {len(short_bad)} of {len(short)} stack runs set "
       f"DEPTH_EXHAUSTED and kept up to {max(r['pen_max'] for r in short):.3g} of penetration."
       if short else "",
-      f"Energy never grew beyond lifting the previous step's penetration in any undriven run"
+      "Energy never grew beyond lifting the previous step's penetration in any undriven run"
       if not energy_bad else
       f"**Energy grew beyond the bound in {len(energy_bad)} undriven runs**, "
       f"{sum(bool(r['status'] & status.FAST_BODY) for r in energy_bad)} of them flagged FAST_BODY",

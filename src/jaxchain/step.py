@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxchain import broadphase, chain, geometry, status, velocity
+from jaxchain import broadphase, chain, status, velocity
 from jaxchain.config import Config
 from jaxchain.world import World
 
