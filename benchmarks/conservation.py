@@ -431,14 +431,8 @@ class JaxChain:
 
 
 def load_engines() -> tuple[list, list[str]]:
-  engines, skipped = [JaxChain()], []
-  for cls in (Box2D, Pymunk):
-    try:
-      engines.append(cls())
-    except Exception as e:  # noqa: BLE001 - any import failure means "not installed".
-      skipped.append(f"{cls.name}: skipped, import failed ({type(e).__name__}: {e}); "
-                     "`pip install -e .[peers]` installs it")
-  return engines, skipped
+  engines, skipped = peers.load_peers((Box2D, Pymunk))
+  return [JaxChain()] + engines, skipped
 
 
 # --- Measures --------------------------------------------------------------------------

@@ -372,10 +372,11 @@ def status_names(code: int) -> str:
   return " ".join(names) or "0"
 
 
-def load_peers() -> tuple[list, list[str]]:
-  """Peer engines that import, and one message per engine that does not."""
+def load_peers(classes=None) -> tuple[list, list[str]]:
+  """Peer engines that import (of `classes`, default Box2D, pymunk and Jax2D), and one
+  message per engine that does not."""
   peers, skipped = [], []
-  for cls in (Box2D, Pymunk, Jax2D):
+  for cls in classes or (Box2D, Pymunk, Jax2D):
     try:
       peers.append(cls())
     except Exception as e:  # noqa: BLE001 - any import failure means "not installed".
