@@ -72,6 +72,7 @@ class Pass(NamedTuple):
     shared: with `vel`: `[4, n]` friction units, the mass that slides with each body
       along the other axis (`_link_impulses`); else None.
     sticking: with `vel`: `[4, n, l]` bool, the links those units are made of.
+    scaled: bool, the energy guard scaled the impulses down (`energy_scale < 1`).
   """
 
   disp: jax.Array
@@ -84,6 +85,7 @@ class Pass(NamedTuple):
   jammed: jax.Array
   shared: jax.Array | None
   sticking: jax.Array | None
+  scaled: jax.Array
 
 
 def backing(front: geometry.Links, mass: jax.Array, immovable: jax.Array, depth: int, *,
@@ -231,7 +233,8 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   disp = disp.at[0].set(jnp.where(movable[None], jnp.maximum(disp[0], crush_push), 0.0))
   net = jnp.stack([disp[:, 0] - disp[:, 1], disp[:, 2] - disp[:, 3]], axis=-1)  # [k, n, 2]
   if vel is None:
-    return Pass(net[0], exhausted, overflow, crushed, front, None, None, jammed, None, None)
+    return Pass(net[0], exhausted, overflow, crushed, front, None, None, jammed, None, None,
+                jnp.zeros((), bool))
   # Links whose two bodies slide past each other slower than `stick` move
   # together along the other axis: they form the units friction moves.
   t_dir = _along(vel[:, ::-1])  # Tangential velocity: y for links along x, x along y.
@@ -267,7 +270,7 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   change = velocity_change(impulse_final)
   scale = energy_scale(vel, change, impulse_final, front, mass, immovable, m_dir)
   return Pass(net[0], exhausted, overflow, crushed, front, scale * change, scale * impulse_final,
-              jammed, shared, sticking)
+              jammed, shared, sticking, lax.stop_gradient(scale < 1))
 
 
 def energy_scale(vel: jax.Array, change: jax.Array, impulse: jax.Array, front: geometry.Links,

@@ -19,6 +19,7 @@ FAST_BODY = 1 << 5
 LINK_OVERFLOW = 1 << 6
 SWITCHED_OFF = 1 << 7
 CRUSHED = 1 << 8
+IMPULSES_SCALED = 1 << 9
 
 MESSAGES = {
     CELL_OVERFLOW: "a grid cell held more movable bodies than Config.grid.cell_capacity; "
@@ -46,6 +47,9 @@ MESSAGES = {
     CRUSHED: "a movable body was squeezed between units that lean on immovable bodies on "
              "opposite sides (world.crushed says which); its overlap was split in half and "
              "it took the mean velocity of what crushes it",
+    IMPULSES_SCALED: "a pass's contact impulses or friction would have added energy (bodies "
+                     "pushing one body together, a fan) and were scaled down for the whole "
+                     "world: velocities were damped, momentum kept (raise Config.iterations)",
 }
 
 

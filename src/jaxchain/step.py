@@ -69,11 +69,14 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
     crushed = crushed | out.crushed
     if v is not None:
       v = v + out.dvel
+      scaled = out.scaled
       if config.immovable:
         v, _ = velocity.crush(v, out.links, out.jammed, movable)
       if config.has_friction:
-        v = velocity.friction(v, out.links, out.impulse, world.friction, out.shared,
-                              out.sticking, mass, depth=config.depth)
+        v, rubbed = velocity.friction(v, out.links, out.impulse, world.friction, out.shared,
+                                      out.sticking, mass, depth=config.depth)
+        scaled = scaled | rubbed
+      code = code | jnp.where(scaled, status.IMPULSES_SCALED, 0)
     return p + out.disp, v, code, out.exhausted, crushed
 
   zero = jnp.zeros((), jnp.int32)

@@ -65,7 +65,8 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
     depth: hops a unit's motion travels (static).
 
   Returns:
-    `[n, 2]` velocities; immovable bodies unchanged.
+    `(vel, scaled)`: `[n, 2]` velocities (immovable bodies unchanged) and whether the
+    energy guard scaled the update down.
   """
   dtype = vel.dtype
   tangent = jnp.stack([vel[:, 1], vel[:, 1], vel[:, 0], vel[:, 0]])  # [4, n]
@@ -97,7 +98,7 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
   # Energy guard, as for the normal impulses: friction may only take energy, beyond
   # what a moving platform gives through its links.
   scale = chain.energy_scale(vel, change, impulse, front, mass, mass == 0, tangent)
-  return vel + scale * change
+  return vel + scale * change, lax.stop_gradient(scale < 1)
 
 
 def _safe_sqrt(x: jax.Array) -> jax.Array:
