@@ -49,7 +49,8 @@ MESSAGES = {
              "it took the mean velocity of what crushes it",
     IMPULSES_SCALED: "a pass's contact impulses or friction would have added energy (bodies "
                      "pushing one body together, a fan) and were scaled down for the whole "
-                     "world: velocities were damped, momentum kept (raise Config.iterations)",
+                     "world: velocities were damped, momentum kept; the next pass or step meets "
+                     "those contacts again",
 }
 
 
