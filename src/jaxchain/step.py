@@ -71,7 +71,7 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
       v = v + out.dvel
       scaled = out.scaled
       if config.immovable:
-        v, _ = velocity.crush(v, out.links, out.jammed, movable)
+        v = velocity.crush(v, out.links, out.jammed, movable)
       if config.has_friction:
         v, rubbed = velocity.friction(v, out.links, out.impulse, world.friction, out.shared,
                                       out.sticking, mass, depth=config.depth)

@@ -119,8 +119,8 @@ def crush(vel: jax.Array, front: geometry.Links, jammed: jax.Array, movable: jax
     movable: `[n]` bool.
 
   Returns:
-    `(vel, crushed)`: velocities and `[n]` bool, movable bodies with a jammed link that
-    overlaps.
+    `[n, 2]` velocities. (Which bodies are crushed the resolution pass reports:
+    `chain.Pass.crushed`.)
   """
   on_axis = jnp.stack([vel[:, 0], vel[:, 0], vel[:, 1], vel[:, 1]])  # [4, n]
   partner = jnp.where(front.mask, front.gather(on_axis), 0.0)
@@ -128,5 +128,4 @@ def crush(vel: jax.Array, front: geometry.Links, jammed: jax.Array, movable: jax
   per_axis = lambda x: jnp.stack([x[0] + x[1], x[2] + x[3]], axis=-1)  # [4, n] -> [n, 2]
   mean = safe_divide(per_axis(jnp.sum(partner, axis=-1)), per_axis(count).astype(vel.dtype))
   hit = per_axis(jnp.any(jammed, axis=-1)) & movable[:, None]
-  crushed = movable & jnp.any(jammed & (front.overlap > 0), axis=(0, 2))
-  return jnp.where(hit, mean, vel), crushed
+  return jnp.where(hit, mean, vel)
