@@ -1,8 +1,9 @@
 """jaxchain: batched, differentiable 2D box collisions with collision chaining."""
 
 from jaxchain import broadphase, metrics, reference, scenes, status
-from jaxchain.broadphase import Candidates
-from jaxchain.config import Config, GridSpec
+from jaxchain.broadphase import GridSpec
+from jaxchain.config import Config
+from jaxchain.geometry import Candidates
 from jaxchain.status import check
 from jaxchain.step import Trajectory, make_step, resolve, rollout, step
 from jaxchain.world import World, stack

@@ -1,7 +1,9 @@
 """Candidate pairs: a fixed-size neighbour table that the narrowphase consumes.
 
-Every broadphase fills the same `Candidates` table, `[n, m]` neighbour indices
-plus a mask, so the chain resolver does not care how the candidates were found.
+Every broadphase fills the same `geometry.Candidates` table, `[n, m]` neighbour
+indices plus a mask, so the chain resolver does not care how the candidates were
+found. The grid's static layout, `GridSpec`, lives here with the grid; `Config`
+(in `jaxchain.config`, which imports this module) holds one.
 """
 
 from __future__ import annotations
@@ -14,45 +16,61 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxchain import status
-from jaxchain.config import Config, GridSpec
+from jaxchain.geometry import Candidates
 
 
-@jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
-class Candidates:
-  """Neighbour table.
+class GridSpec:
+  """Static layout of the uniform grid broadphase (see `jaxchain.broadphase`).
 
   Attributes:
-    idx: `[n, m]` int32, `idx[i, k]` is the k-th candidate partner of body i.
-      Unused slots hold any valid index and are masked out. `None` means dense:
-      `m = n` and `idx[i, k] = k`, so gathers become broadcasts.
-    mask: `[n, m]` bool, which slots are real candidate pairs. A pair (i, j) is
-      listed in both rows i and j, so every pairwise quantity is computed from
-      both sides and the resolver stays permutation-equivariant.
+    origin: `(x0, y0)` lower-left corner of cell `(0, 0)`.
+    cell: cell side; at least `2 * reach + skin`, so movable bodies that touch sit
+      in neighbouring cells.
+    shape: `(nx, ny)` cells. Bodies outside are clamped into the border cells:
+      still correct, only more crowded.
+    reach: the largest half-extent of a movable body the grid is built for; a larger
+      one sets `status.BODY_TOO_LARGE`.
+    cell_capacity: movable bodies per cell; more sets `status.CELL_OVERFLOW`.
+    static_capacity: immovable bodies per cell (each is entered in every cell it
+      can touch a movable body from).
+    static_entries: total (immovable body, cell) entries per world; more, or more
+      than `static_capacity` in a cell, sets `status.STATIC_OVERFLOW`.
   """
 
-  idx: jax.Array | None
-  mask: jax.Array
+  origin: tuple[float, float]
+  cell: float
+  shape: tuple[int, int]
+  reach: float
+  cell_capacity: int = 4
+  static_capacity: int = 8
+  static_entries: int = 64
 
-  def gather(self, x: jax.Array) -> jax.Array:
-    """Partner values of `x` with bodies on the last axis: `[..., n]` -> `[..., n, m]`."""
-    if self.idx is None:
-      return jnp.broadcast_to(x[..., None, :], x.shape[:-1] + (x.shape[-1], x.shape[-1]))
-    return x[..., self.idx]
+  def __post_init__(self):
+    object.__setattr__(self, "origin", tuple(float(x) for x in self.origin))
+    object.__setattr__(self, "shape", tuple(int(x) for x in self.shape))
+    for name in ("cell", "reach"):
+      object.__setattr__(self, name, float(getattr(self, name)))
+    if len(self.origin) != 2 or len(self.shape) != 2 or min(self.shape) < 1:
+      raise ValueError(f"GridSpec: origin and shape need two entries, shape >= 1; got {self}")
+    if not self.cell > 0 or not self.reach >= 0:
+      raise ValueError(f"GridSpec: cell must be > 0 and reach >= 0; got {self}")
+    if self.cell < 2 * self.reach:
+      raise ValueError(f"GridSpec: cell {self.cell} is smaller than 2 * reach {self.reach}")
+    for name in ("cell_capacity", "static_capacity", "static_entries"):
+      v = getattr(self, name)
+      if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+        raise ValueError(f"GridSpec.{name}: expected an integer >= 1, got {v!r}")
+      object.__setattr__(self, name, int(v))
 
-  def gather_bodies(self, x: jax.Array) -> jax.Array:
-    """Per-partner values of a per-body array `x` of shape `[n, *f]`: `[n, m, *f]`."""
-    if self.idx is None:
-      n = x.shape[0]
-      return jnp.broadcast_to(x[None], (n,) + x.shape)
-    return x[self.idx]
+  @property
+  def num_cells(self) -> int:
+    return self.shape[0] * self.shape[1]
 
-  def partner_index(self) -> jax.Array:
-    """`[n, m]` int32 partner indices (materialised for dense)."""
-    if self.idx is None:
-      n = self.mask.shape[0]
-      return jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), (n, n))
-    return self.idx
+  @property
+  def row_size(self) -> int:
+    """Candidate slots per body: the 3x3 movable neighbourhood plus own-cell statics."""
+    return 9 * self.cell_capacity + self.static_capacity
 
 
 def dense(active: jax.Array) -> Candidates:
@@ -166,8 +184,14 @@ def _fill(cell_id: jax.Array, value: jax.Array, n_cells: int, capacity: int,
   return table, jnp.any(entered & (rank >= capacity))
 
 
-def candidates(pos: jax.Array, world, config: Config) -> tuple[Candidates, jax.Array]:
+def candidates(pos: jax.Array, world, config) -> tuple[Candidates, jax.Array]:
   """The candidate table the config asks for, at positions `pos` (traced).
+
+  Args:
+    pos: `[n, 2]` centres.
+    world: the `World` (half-extents, active and movable masks).
+    config: a `Config`; only its `uses_grid`, `grid` and `skin` are read (not
+      imported here: `jaxchain.config` imports this module for `GridSpec`).
 
   Returns:
     `(candidates, status)`; status is int32 bits, 0 for dense pairs.

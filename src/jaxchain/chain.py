@@ -32,7 +32,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxchain import geometry
-from jaxchain.broadphase import Candidates
+from jaxchain.geometry import Candidates
 
 # Jacobi refinement steps on the contact impulses after the chain's estimate.
 REFINE = 4

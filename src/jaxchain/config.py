@@ -8,6 +8,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxchain.broadphase import GridSpec
+
 BROADPHASES = ("auto", "dense", "grid")
 
 # Worlds with at most this many body slots use dense all-pairs candidates in
@@ -27,60 +29,6 @@ MIN_LINKS = 4
 MAX_SUBSTEPS = 64
 
 _REALS = (int, float, np.integer, np.floating)
-
-
-@dataclasses.dataclass(frozen=True)
-class GridSpec:
-  """Static layout of the uniform grid broadphase (see `jaxchain.broadphase`).
-
-  Attributes:
-    origin: `(x0, y0)` lower-left corner of cell `(0, 0)`.
-    cell: cell side; at least `2 * reach + skin`, so movable bodies that touch sit
-      in neighbouring cells.
-    shape: `(nx, ny)` cells. Bodies outside are clamped into the border cells:
-      still correct, only more crowded.
-    reach: the largest half-extent of a movable body the grid is built for; a larger
-      one sets `status.BODY_TOO_LARGE`.
-    cell_capacity: movable bodies per cell; more sets `status.CELL_OVERFLOW`.
-    static_capacity: immovable bodies per cell (each is entered in every cell it
-      can touch a movable body from).
-    static_entries: total (immovable body, cell) entries per world; more, or more
-      than `static_capacity` in a cell, sets `status.STATIC_OVERFLOW`.
-  """
-
-  origin: tuple[float, float]
-  cell: float
-  shape: tuple[int, int]
-  reach: float
-  cell_capacity: int = 4
-  static_capacity: int = 8
-  static_entries: int = 64
-
-  def __post_init__(self):
-    object.__setattr__(self, "origin", tuple(float(x) for x in self.origin))
-    object.__setattr__(self, "shape", tuple(int(x) for x in self.shape))
-    for name in ("cell", "reach"):
-      object.__setattr__(self, name, float(getattr(self, name)))
-    if len(self.origin) != 2 or len(self.shape) != 2 or min(self.shape) < 1:
-      raise ValueError(f"GridSpec: origin and shape need two entries, shape >= 1; got {self}")
-    if not self.cell > 0 or not self.reach >= 0:
-      raise ValueError(f"GridSpec: cell must be > 0 and reach >= 0; got {self}")
-    if self.cell < 2 * self.reach:
-      raise ValueError(f"GridSpec: cell {self.cell} is smaller than 2 * reach {self.reach}")
-    for name in ("cell_capacity", "static_capacity", "static_entries"):
-      v = getattr(self, name)
-      if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-        raise ValueError(f"GridSpec.{name}: expected an integer >= 1, got {v!r}")
-      object.__setattr__(self, name, int(v))
-
-  @property
-  def num_cells(self) -> int:
-    return self.shape[0] * self.shape[1]
-
-  @property
-  def row_size(self) -> int:
-    """Candidate slots per body: the 3x3 movable neighbourhood plus own-cell statics."""
-    return 9 * self.cell_capacity + self.static_capacity
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,5 +1,8 @@
 """Narrowphase: per candidate pair, the contact axis, direction and depth.
 
+The pairs come in a `Candidates` table, defined here because the narrowphase is
+what consumes it; `jaxchain.broadphase` fills it.
+
 Directions are numbered `0: +x, 1: -x, 2: +y, 3: -y`; `d ^ 1` is the opposite.
 """
 
@@ -12,13 +15,49 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxchain.broadphase import Candidates
-
 DIRECTIONS = ("+x", "-x", "+y", "-y")
 NUM_DIRECTIONS = 4
 OPPOSITE = np.array([1, 0, 3, 2])  # d -> d ^ 1, as a static index.
 ALONG_Y = np.array([False, False, True, True])[:, None, None]  # Per direction: its axis is y.
 _WORD_BITS = 24  # Bits packed per float32 word in `_first_set` (exact below 2^24).
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Candidates:
+  """Neighbour table.
+
+  Attributes:
+    idx: `[n, m]` int32, `idx[i, k]` is the k-th candidate partner of body i.
+      Unused slots hold any valid index and are masked out. `None` means dense:
+      `m = n` and `idx[i, k] = k`, so gathers become broadcasts.
+    mask: `[n, m]` bool, which slots are real candidate pairs. A pair (i, j) is
+      listed in both rows i and j, so every pairwise quantity is computed from
+      both sides and the resolver stays permutation-equivariant.
+  """
+
+  idx: jax.Array | None
+  mask: jax.Array
+
+  def gather(self, x: jax.Array) -> jax.Array:
+    """Partner values of `x` with bodies on the last axis: `[..., n]` -> `[..., n, m]`."""
+    if self.idx is None:
+      return jnp.broadcast_to(x[..., None, :], x.shape[:-1] + (x.shape[-1], x.shape[-1]))
+    return x[..., self.idx]
+
+  def gather_bodies(self, x: jax.Array) -> jax.Array:
+    """Per-partner values of a per-body array `x` of shape `[n, *f]`: `[n, m, *f]`."""
+    if self.idx is None:
+      n = x.shape[0]
+      return jnp.broadcast_to(x[None], (n,) + x.shape)
+    return x[self.idx]
+
+  def partner_index(self) -> jax.Array:
+    """`[n, m]` int32 partner indices (materialised for dense)."""
+    if self.idx is None:
+      n = self.mask.shape[0]
+      return jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), (n, n))
+    return self.idx
 
 
 @jax.tree_util.register_dataclass
