@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from jax.test_util import check_grads
 
 import jaxchain as jc
-from jaxchain import broadphase, geometry, scenes, status
+from jaxchain import geometry, scenes, sizing, status
 from tests.helpers import TOL, mixed_room
 
 N = 32  # Every room is padded to this: one compile per config.
@@ -20,7 +20,7 @@ COMPACT = {"dense": FULL.replace(links=4),
            "grid": FULL.replace(links=4, broadphase="grid", grid=SPEC)}
 
 first_set = jax.jit(geometry._first_set, static_argnames="limit")
-measure = jax.jit(jax.vmap(lambda w: broadphase.measure(
+measure = jax.jit(jax.vmap(lambda w: sizing.measure(
     w.pos, w.half, w.active, w.movable, spec=None, skin=1e-4, max_hops=N)[1]))
 
 

@@ -1,6 +1,6 @@
 """jaxchain: batched, differentiable 2D box collisions with collision chaining."""
 
-from jaxchain import broadphase, metrics, reference, scenes, status
+from jaxchain import broadphase, metrics, reference, scenes, sizing, status
 from jaxchain.broadphase import GridSpec
 from jaxchain.config import Config
 from jaxchain.geometry import Candidates
@@ -10,6 +10,6 @@ from jaxchain.world import World, stack
 
 __all__ = [
     "Candidates", "Config", "GridSpec", "Trajectory", "World", "broadphase", "check", "make_step",
-    "metrics", "reference", "resolve", "rollout", "scenes", "stack", "status", "step",
+    "metrics", "reference", "resolve", "rollout", "scenes", "sizing", "stack", "status", "step",
 ]
 __version__ = "0.1.0"

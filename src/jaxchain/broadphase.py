@@ -271,23 +271,3 @@ def allocate(world, skin: float = 1e-4, *, headroom: float = 2.0, max_cells: int
                   cell_capacity=max(2, int(np.ceil(cell_max * headroom))),
                   static_capacity=max(2, int(np.ceil(static_max * headroom))),
                   static_entries=max(16, int(np.ceil(entries_max * headroom))))
-
-
-
-@functools.partial(jax.jit, static_argnames=("spec", "skin"))
-def measure(pos, half, active, movable, max_hops, *, spec: GridSpec | None,
-            skin: float) -> tuple[jax.Array, jax.Array]:
-  """Longest chain of touching bodies (up to the traced `max_hops`) and most links
-  per body and direction, per world (`chain.measure`), for a single world or a batch
-  (leading axis); dense pairs, or the grid with `spec`. Jitted once per shape and
-  static arguments."""
-  from jaxchain import chain  # chain imports this module.
-
-  def one(pos, half, active, movable):
-    if spec is None:
-      cand = dense(active)
-    else:
-      cand, _ = grid(pos, half, active, movable, spec, skin)
-    return chain.measure(pos, half, movable, cand, skin=skin, max_hops=max_hops)
-
-  return one(pos, half, active, movable) if pos.ndim == 2 else jax.vmap(one)(pos, half, active, movable)

@@ -355,37 +355,3 @@ def apply_impulses(impulse: jax.Array, inv_mass: jax.Array) -> jax.Array:
   entry `(d, i, .)` pushes i against d."""
   total = jnp.sum(impulse, axis=-1)  # [4, n]
   return inv_mass[:, None] * jnp.stack([total[1] - total[0], total[3] - total[2]], axis=-1)
-
-
-def measure(pos: jax.Array, half: jax.Array, movable: jax.Array, cand: Candidates, *,
-            skin: float, max_hops: int | jax.Array) -> tuple[jax.Array, jax.Array]:
-  """What a scene needs now: the links in its longest chain of touching or
-  overlapping bodies (a wall at the end counts as a link, along any direction, up
-  to `max_hops`) and the most links any movable body has in one direction. Used on
-  the host to pick a chain depth and a link table size; not differentiable (a
-  `while_loop` that stops when nothing changes).
-
-  Args:
-    pos, half: `[n, 2]`.
-    movable: `[n]` bool; immovable bodies end chains.
-    cand: candidate table.
-    skin: static.
-    max_hops: int, may be traced (only the loop condition reads it).
-
-  Returns:
-    `(longest_chain, most_links)`, int32 scalars.
-  """
-  c = geometry.contacts(pos, half, cand, skin)
-  front = geometry.by_direction(c, rows=movable)  # [4, n, m]
-  carries = cand.gather(movable[None].astype(jnp.int32)) > 0  # [1, n, m]: j passes pushes on.
-
-  def hop(state):
-    length, _, k = state
-    ahead = jnp.where(carries, cand.gather(length), 0)
-    new = jnp.max(jnp.where(front, 1 + ahead, 0), axis=-1, initial=0)
-    return new, jnp.any(new != length), k + 1
-
-  length = jnp.zeros(front.shape[:2], jnp.int32)
-  length, _, _ = lax.while_loop(lambda s: s[1] & (s[2] < jnp.int32(max_hops)), hop,
-                                (length, jnp.array(True), jnp.array(0, jnp.int32)))
-  return jnp.max(length, initial=0), jnp.max(jnp.sum(front, axis=-1, dtype=jnp.int32), initial=0)

@@ -4,29 +4,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import NamedTuple
 
 import numpy as np
 
-from jaxchain.broadphase import GridSpec
+from jaxchain import sizing
+from jaxchain.broadphase import GridSpec  # Re-exported: jaxchain.config.GridSpec.
+# Re-exported: the sizing limits are documented as jaxchain.config.MAX_SUBSTEPS etc.
+from jaxchain.sizing import DENSE_MAX_BODIES, MAX_SUBSTEPS, MIN_LINKS
 
 BROADPHASES = ("auto", "dense", "grid")
-
-# Worlds with at most this many body slots use dense all-pairs candidates in
-# `for_world` and "auto". Measured with compact link tables
-# (benchmarks/results/scaling.md): dense is faster at N=128 and the grid at N=256,
-# for one world and for batches of 16; between the two it is not measured.
-DENSE_MAX_BODIES = 192
-
-# `for_world` keeps at least this many links per body and direction (two unit boxes
-# side by side under a third is 2; an overlapping crowd may have 3).
-MIN_LINKS = 4
-
-# `for_world` refuses a scene that would need more substeps than this to keep every
-# body under the tunnelling limit (a box of half-extent 1e-9 falling under gravity
-# would get 1.7 million): a tiny or very fast body is nearly always a units mistake.
-# Pass `substeps=` to `for_world` explicitly to run such a scene anyway.
-MAX_SUBSTEPS = 64
 
 _REALS = (int, float, np.integer, np.floating)
 
@@ -143,6 +129,9 @@ class Config:
   def for_world(cls, world, **overrides) -> Config:
     """A config that leaves out what `world` does not use.
 
+    Implemented by `jaxchain.sizing.for_world` (all host-side sizing lives there);
+    this classmethod is the public entry point and delegates to it.
+
     Looks at the (host) world, or a padded batch of worlds, and switches off:
     immovable-body handling when no active body is immovable; chain depth beyond
     what the scene can use: `min(movable bodies, max(8, 2 * longest chain))`, where
@@ -173,100 +162,4 @@ class Config:
       >>> cfg.immovable, cfg.depth, cfg.has_gravity, cfg.has_friction
       (False, 2, False, False)
     """
-    from jaxchain import broadphase as bp  # Import here: broadphase imports config.
-    active = np.asarray(world.active)
-    inv_mass = np.asarray(world.inv_mass)
-    n = int(world.pos.shape[-2])
-    movable = active & (inv_mass > 0)
-    n_movable = int(np.max(np.sum(movable, axis=-1), initial=0))
-    gravity = np.asarray(world.gravity, np.float64)  # [2] or [b, 2].
-    switches = dict(
-        gravity=bool(np.any(np.any(movable, axis=-1) & np.any(gravity != 0, axis=-1))),
-        friction=bool(np.any(active & (np.asarray(world.friction) > 0))))
-    switches.update({k: v for k, v in overrides.items() if k in switches})
-    derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps", "links")
-    base = cls(**{**{k: v for k, v in overrides.items() if k not in derived_keys}, **switches})
-    derived = dict(immovable=bool(np.any(active & (inv_mass == 0))))
-    if "substeps" not in overrides:
-      need = _substep_need(world, base.dt, gravity if base.gravity else 0.0)
-      if need.substeps > MAX_SUBSTEPS:
-        raise ValueError(need.message(base.dt))
-      derived["substeps"] = need.substeps
-    broadphase = overrides.get("broadphase", "auto")
-    if broadphase in ("auto", "grid") and "grid" not in overrides:
-      if broadphase == "grid" or n > DENSE_MAX_BODIES:
-        spec = bp.allocate(world, base.skin)
-        crowded = spec.row_size > n / 4
-        derived.update(grid=spec, broadphase="dense" if crowded and broadphase == "auto" else "grid")
-      else:
-        derived.update(broadphase="dense")
-    chosen = base.replace(**{**derived, **{k: v for k, v in overrides.items() if k in derived_keys}})
-    uses_grid = chosen.uses_grid(n)
-    cap = max(n_movable, 1)
-    if not ("depth" in overrides and "links" in overrides):  # Else nothing to measure.
-      movable = world.active & (world.inv_mass > 0)
-      chain_found, links_found = bp.measure(world.pos, world.half, world.active, movable,
-                                            np.int32(cap), spec=chosen.grid if uses_grid else None,
-                                            skin=base.skin)
-      derived["depth"] = min(cap, max(Config.depth, 2 * int(np.max(chain_found, initial=0))))
-      row = chosen.grid.row_size if uses_grid else n
-      links = max(MIN_LINKS, 2 * int(np.max(links_found, initial=0)))
-      derived["links"] = links if links < row else None
-    derived.update({k: v for k, v in overrides.items() if k in derived_keys})
-    return base.replace(**derived)
-
-
-class _SubstepNeed(NamedTuple):
-  """How many substeps a world needs, and the body that needs the most."""
-
-  substeps: int
-  body: tuple[int, ...]  # (body,) or (world, body).
-  axis: int
-  speed: float  # Along `axis`, with one step of gravity.
-  half: float
-  thinnest: float  # The thinnest active body's half-extent along `axis`.
-  safety: float
-
-  def message(self, dt: float) -> str:
-    where = (f"body {self.body[0]}" if len(self.body) == 1
-             else f"body {self.body[-1]} of world {self.body[0]}")
-    return (
-        f"Config.for_world: {where} would need {self.substeps} substeps, more than "
-        f"MAX_SUBSTEPS = {MAX_SUBSTEPS}: it moves at {self.speed:.3g} along {'xy'[self.axis]} "
-        f"(its velocity plus one step of gravity) and has half-extent {self.half:.3g} there "
-        f"(the thinnest body {self.thinnest:.3g}), so one step of dt = {dt:.3g} carries it "
-        f"{self.speed * dt:.3g}, and without tunnelling it may move only "
-        f"{(self.half + self.thinnest) / self.safety:.3g} per substep ((its half-extent + the "
-        f"thinnest) / {self.safety:g}). Use larger bodies (or other length units) or a smaller "
-        f"dt; or pass substeps= explicitly to run it anyway (status.FAST_BODY then reports "
-        f"what moves too far)")
-
-
-def _substep_need(world, dt: float, gravity=0.0, safety: float = 1.25) -> _SubstepNeed:
-  """Fewest substeps with `|v| dt / substeps < (half + thinnest half) / safety` for
-  every active body and axis, at the world's current velocities plus one step of
-  gravity, and the body that sets it.
-
-  Args:
-    world: a world or a padded batch.
-    dt: the step.
-    gravity: `[2]` (one world) or `[b, 2]` (a batch, one per world), or a scalar;
-      normally `world.gravity`, or 0 when gravity is switched off.
-    safety: margin on the tunnelling limit.
-  """
-  active = np.asarray(world.active)
-  if not active.any():
-    return _SubstepNeed(1, (0,) * active.ndim, 0, 0.0, 0.0, 0.0, safety)
-  half = np.asarray(world.half, np.float64)
-  gravity = np.asarray(gravity, np.float64)
-  if gravity.ndim >= 1:
-    gravity = gravity[..., None, :]  # Per world, broadcast over its bodies.
-  speed = np.broadcast_to(np.abs(np.asarray(world.vel, np.float64)) + np.abs(gravity) * dt,
-                          half.shape)
-  thinnest = np.min(half[active], axis=0)
-  ratio = np.where(active[..., None], speed * dt * safety / (half + thinnest), 0.0)
-  worst = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
-  return _SubstepNeed(max(1, int(np.ceil(ratio[worst]))), tuple(int(i) for i in worst[:-1]),
-                      int(worst[-1]), float(speed[worst]), float(half[worst]),
-                      float(thinnest[worst[-1]]), safety)
-
+    return sizing.for_world(cls, world, **overrides)

@@ -1,0 +1,214 @@
+"""Host-side sizing: the static shapes and switches a `Config` gets from a scene.
+
+Everything here looks at concrete (host) worlds, eagerly, to choose what the
+compiled step is built for: the grid layout (`allocate`, defined with the grid in
+`jaxchain.broadphase` and re-exported here), the longest chain and the most links
+per body (`measure`), the substeps that keep bodies from tunnelling
+(`_substep_need`), and all of it together (`for_world`, the body of
+`Config.for_world`). Nothing here runs inside a step.
+
+Layout: this module comes after `broadphase` and before `config`; `config` imports
+it, so it takes the config class as an argument instead of importing it.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from jaxchain import broadphase, geometry
+from jaxchain.broadphase import allocate
+
+__all__ = ["DENSE_MAX_BODIES", "MAX_SUBSTEPS", "MIN_LINKS", "allocate", "for_world", "measure",
+           "measure_table"]
+
+# Worlds with at most this many body slots use dense all-pairs candidates in
+# `for_world` and "auto". Measured with compact link tables
+# (benchmarks/results/scaling.md): dense is faster at N=128 and the grid at N=256,
+# for one world and for batches of 16; between the two it is not measured.
+DENSE_MAX_BODIES = 192
+
+# `for_world` keeps at least this many links per body and direction (two unit boxes
+# side by side under a third is 2; an overlapping crowd may have 3).
+MIN_LINKS = 4
+
+# `for_world` refuses a scene that would need more substeps than this to keep every
+# body under the tunnelling limit (a box of half-extent 1e-9 falling under gravity
+# would get 1.7 million): a tiny or very fast body is nearly always a units mistake.
+# Pass `substeps=` to `for_world` explicitly to run such a scene anyway.
+MAX_SUBSTEPS = 64
+
+
+def for_world(cls, world, /, **overrides):
+  """The body of `Config.for_world` (the public entry point, documented there).
+
+  Takes the config class instead of importing it: `jaxchain.config` imports this
+  module (so `Config.for_world` is a one-line delegation with no import inside a
+  function), and this module therefore comes before it in the layout. `cls` only
+  needs what `Config` offers: construction from keywords, `depth` (the default),
+  `dt`, `skin`, `gravity`, `grid`, `replace` and `uses_grid`.
+
+  Args:
+    cls: the config class (`jaxchain.Config`).
+    world: a (host) `World`, or a padded batch of worlds.
+    **overrides: `Config` fields; explicit ones always win.
+
+  Returns:
+    A `cls` instance sized for `world`.
+
+  Raises:
+    ValueError: when a body would need more than `MAX_SUBSTEPS` substeps, or for
+      invalid overrides.
+  """
+  active = np.asarray(world.active)
+  inv_mass = np.asarray(world.inv_mass)
+  n = int(world.pos.shape[-2])
+  movable = active & (inv_mass > 0)
+  n_movable = int(np.max(np.sum(movable, axis=-1), initial=0))
+  gravity = np.asarray(world.gravity, np.float64)  # [2] or [b, 2].
+  switches = dict(
+      gravity=bool(np.any(np.any(movable, axis=-1) & np.any(gravity != 0, axis=-1))),
+      friction=bool(np.any(active & (np.asarray(world.friction) > 0))))
+  switches.update({k: v for k, v in overrides.items() if k in switches})
+  derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps", "links")
+  base = cls(**{**{k: v for k, v in overrides.items() if k not in derived_keys}, **switches})
+  derived = dict(immovable=bool(np.any(active & (inv_mass == 0))))
+  if "substeps" not in overrides:
+    need = _substep_need(world, base.dt, gravity if base.gravity else 0.0)
+    if need.substeps > MAX_SUBSTEPS:
+      raise ValueError(need.message(base.dt))
+    derived["substeps"] = need.substeps
+  broadphase = overrides.get("broadphase", "auto")
+  if broadphase in ("auto", "grid") and "grid" not in overrides:
+    if broadphase == "grid" or n > DENSE_MAX_BODIES:
+      spec = broadphase.allocate(world, base.skin)
+      crowded = spec.row_size > n / 4
+      derived.update(grid=spec, broadphase="dense" if crowded and broadphase == "auto" else "grid")
+    else:
+      derived.update(broadphase="dense")
+  chosen = base.replace(**{**derived, **{k: v for k, v in overrides.items() if k in derived_keys}})
+  uses_grid = chosen.uses_grid(n)
+  cap = max(n_movable, 1)
+  if not ("depth" in overrides and "links" in overrides):  # Else nothing to measure.
+    movable = world.active & (world.inv_mass > 0)
+    chain_found, links_found = measure(world.pos, world.half, world.active, movable,
+                                          np.int32(cap), spec=chosen.grid if uses_grid else None,
+                                          skin=base.skin)
+    derived["depth"] = min(cap, max(cls.depth, 2 * int(np.max(chain_found, initial=0))))
+    row = chosen.grid.row_size if uses_grid else n
+    links = max(MIN_LINKS, 2 * int(np.max(links_found, initial=0)))
+    derived["links"] = links if links < row else None
+  derived.update({k: v for k, v in overrides.items() if k in derived_keys})
+  return base.replace(**derived)
+
+
+class _SubstepNeed(NamedTuple):
+  """How many substeps a world needs, and the body that needs the most."""
+
+  substeps: int
+  body: tuple[int, ...]  # (body,) or (world, body).
+  axis: int
+  speed: float  # Along `axis`, with one step of gravity.
+  half: float
+  thinnest: float  # The thinnest active body's half-extent along `axis`.
+  safety: float
+
+  def message(self, dt: float) -> str:
+    where = (f"body {self.body[0]}" if len(self.body) == 1
+             else f"body {self.body[-1]} of world {self.body[0]}")
+    return (
+        f"Config.for_world: {where} would need {self.substeps} substeps, more than "
+        f"MAX_SUBSTEPS = {MAX_SUBSTEPS}: it moves at {self.speed:.3g} along {'xy'[self.axis]} "
+        f"(its velocity plus one step of gravity) and has half-extent {self.half:.3g} there "
+        f"(the thinnest body {self.thinnest:.3g}), so one step of dt = {dt:.3g} carries it "
+        f"{self.speed * dt:.3g}, and without tunnelling it may move only "
+        f"{(self.half + self.thinnest) / self.safety:.3g} per substep ((its half-extent + the "
+        f"thinnest) / {self.safety:g}). Use larger bodies (or other length units) or a smaller "
+        f"dt; or pass substeps= explicitly to run it anyway (status.FAST_BODY then reports "
+        f"what moves too far)")
+
+
+def _substep_need(world, dt: float, gravity=0.0, safety: float = 1.25) -> _SubstepNeed:
+  """Fewest substeps with `|v| dt / substeps < (half + thinnest half) / safety` for
+  every active body and axis, at the world's current velocities plus one step of
+  gravity, and the body that sets it.
+
+  Args:
+    world: a world or a padded batch.
+    dt: the step.
+    gravity: `[2]` (one world) or `[b, 2]` (a batch, one per world), or a scalar;
+      normally `world.gravity`, or 0 when gravity is switched off.
+    safety: margin on the tunnelling limit.
+  """
+  active = np.asarray(world.active)
+  if not active.any():
+    return _SubstepNeed(1, (0,) * active.ndim, 0, 0.0, 0.0, 0.0, safety)
+  half = np.asarray(world.half, np.float64)
+  gravity = np.asarray(gravity, np.float64)
+  if gravity.ndim >= 1:
+    gravity = gravity[..., None, :]  # Per world, broadcast over its bodies.
+  speed = np.broadcast_to(np.abs(np.asarray(world.vel, np.float64)) + np.abs(gravity) * dt,
+                          half.shape)
+  thinnest = np.min(half[active], axis=0)
+  ratio = np.where(active[..., None], speed * dt * safety / (half + thinnest), 0.0)
+  worst = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+  return _SubstepNeed(max(1, int(np.ceil(ratio[worst]))), tuple(int(i) for i in worst[:-1]),
+                      int(worst[-1]), float(speed[worst]), float(half[worst]),
+                      float(thinnest[worst[-1]]), safety)
+
+
+@functools.partial(jax.jit, static_argnames=("spec", "skin"))
+def measure(pos, half, active, movable, max_hops, *, spec: broadphase.GridSpec | None,
+            skin: float) -> tuple[jax.Array, jax.Array]:
+  """Longest chain of touching bodies (up to the traced `max_hops`) and most links
+  per body and direction, per world (`measure_table`), for a single world or a batch
+  (leading axis); dense pairs, or the grid with `spec`. Jitted once per shape and
+  static arguments."""
+
+  def one(pos, half, active, movable):
+    if spec is None:
+      cand = broadphase.dense(active)
+    else:
+      cand, _ = broadphase.grid(pos, half, active, movable, spec, skin)
+    return measure_table(pos, half, movable, cand, skin=skin, max_hops=max_hops)
+
+  return one(pos, half, active, movable) if pos.ndim == 2 else jax.vmap(one)(pos, half, active, movable)
+
+
+def measure_table(pos: jax.Array, half: jax.Array, movable: jax.Array,
+                  cand: geometry.Candidates, *, skin: float, max_hops: int | jax.Array) -> tuple[jax.Array, jax.Array]:
+  """What a scene needs now: the links in its longest chain of touching or
+  overlapping bodies (a wall at the end counts as a link, along any direction, up
+  to `max_hops`) and the most links any movable body has in one direction. Used on
+  the host to pick a chain depth and a link table size; not differentiable (a
+  `while_loop` that stops when nothing changes).
+
+  Args:
+    pos, half: `[n, 2]`.
+    movable: `[n]` bool; immovable bodies end chains.
+    cand: candidate table.
+    skin: static.
+    max_hops: int, may be traced (only the loop condition reads it).
+
+  Returns:
+    `(longest_chain, most_links)`, int32 scalars.
+  """
+  c = geometry.contacts(pos, half, cand, skin)
+  front = geometry.by_direction(c, rows=movable)  # [4, n, m]
+  carries = cand.gather(movable[None].astype(jnp.int32)) > 0  # [1, n, m]: j passes pushes on.
+
+  def hop(state):
+    length, _, k = state
+    ahead = jnp.where(carries, cand.gather(length), 0)
+    new = jnp.max(jnp.where(front, 1 + ahead, 0), axis=-1, initial=0)
+    return new, jnp.any(new != length), k + 1
+
+  length = jnp.zeros(front.shape[:2], jnp.int32)
+  length, _, _ = lax.while_loop(lambda s: s[1] & (s[2] < jnp.int32(max_hops)), hop,
+                                (length, jnp.array(True), jnp.array(0, jnp.int32)))
+  return jnp.max(length, initial=0), jnp.max(jnp.sum(front, axis=-1, dtype=jnp.int32), initial=0)
