@@ -18,8 +18,7 @@ from jaxchain.step import rollout
 from jaxchain.world import stack
 
 # Status bit -> its name in `jaxchain.status` (FAST_BODY, ...), for the summary.
-_BIT_NAMES = {bit: name for name, bit in vars(status).items()
-              if name.isupper() and isinstance(bit, int) and bit in status.MESSAGES}
+_BIT_NAMES = {bit: bit.name for bit in status.Status if bit}
 
 
 def _integer(text: str, lo: int) -> int:

@@ -7,20 +7,52 @@ turns them into readable messages on the host.
 
 from __future__ import annotations
 
+import enum
+
 import numpy as np
 
-OK = 0
-CELL_OVERFLOW = 1 << 0
-STATIC_OVERFLOW = 1 << 1
-BODY_TOO_LARGE = 1 << 2
-NON_FINITE = 1 << 3
-DEPTH_EXHAUSTED = 1 << 4
-FAST_BODY = 1 << 5
-LINK_OVERFLOW = 1 << 6
-SWITCHED_OFF = 1 << 7
-CRUSHED = 1 << 8
-IMPULSES_SCALED = 1 << 9
 
+class Status(enum.IntFlag):
+  """The status bits of `World.status`; each member's `message` says what went
+  wrong and what to do about it (`MESSAGES`).
+
+  An `IntFlag`, so members are ints: `jnp.where(bad, Status.FAST_BODY, 0)` traces
+  as a weakly typed int, exactly like the plain int it replaced, and bits combine
+  with `|` and test with `&`. The module-level names (`status.FAST_BODY`, ...) are
+  the same members.
+  """
+
+  OK = 0
+  CELL_OVERFLOW = 1 << 0
+  STATIC_OVERFLOW = 1 << 1
+  BODY_TOO_LARGE = 1 << 2
+  NON_FINITE = 1 << 3
+  DEPTH_EXHAUSTED = 1 << 4
+  FAST_BODY = 1 << 5
+  LINK_OVERFLOW = 1 << 6
+  SWITCHED_OFF = 1 << 7
+  CRUSHED = 1 << 8
+  IMPULSES_SCALED = 1 << 9
+
+  @property
+  def message(self) -> str:
+    """The readable message of a bit (of each bit set, joined by "; "; "" for `OK`)."""
+    return "; ".join(MESSAGES[bit] for bit in self)
+
+
+OK = Status.OK
+CELL_OVERFLOW = Status.CELL_OVERFLOW
+STATIC_OVERFLOW = Status.STATIC_OVERFLOW
+BODY_TOO_LARGE = Status.BODY_TOO_LARGE
+NON_FINITE = Status.NON_FINITE
+DEPTH_EXHAUSTED = Status.DEPTH_EXHAUSTED
+FAST_BODY = Status.FAST_BODY
+LINK_OVERFLOW = Status.LINK_OVERFLOW
+SWITCHED_OFF = Status.SWITCHED_OFF
+CRUSHED = Status.CRUSHED
+IMPULSES_SCALED = Status.IMPULSES_SCALED
+
+# Every bit's message, in bit order (the order `check` reports them in).
 MESSAGES = {
     CELL_OVERFLOW: "a grid cell held more movable bodies than Config.grid.cell_capacity; "
                    "contacts were missed (re-run Config.for_world on the current world, or "
