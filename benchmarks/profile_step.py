@@ -15,7 +15,6 @@ Writes `results/profile.md`.
 from __future__ import annotations
 
 import argparse
-import importlib
 import pathlib
 import statistics
 import time
@@ -26,12 +25,11 @@ import numpy as np
 from tqdm import tqdm
 
 import jaxchain as jc
-from jaxchain import broadphase, geometry, scenes
+from jaxchain import broadphase, geometry, scenes, stepping
 from _bench import machine, median_time
 from peers import room
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
-step_module = importlib.import_module("jaxchain.step")  # `jc.step` is the function.
 
 
 def stages(cfg: jc.Config) -> dict:
@@ -53,7 +51,7 @@ def stages(cfg: jc.Config) -> dict:
 
   def passes(config, with_vel):
     def fn(w):
-      pos, vel, _, _ = step_module._passes(w, w.pos, config, start=w.pos,
+      pos, vel, _, _ = stepping._passes(w, w.pos, config, start=w.pos,
                                            vel=w.vel if with_vel else None)
       return pos if vel is None else (pos, vel)  # Return what a stage makes: no dead code.
     return fn
@@ -65,7 +63,7 @@ def stages(cfg: jc.Config) -> dict:
       "resolver, depth 0, with contact impulses": passes(shallow.replace(friction=False), True),
       f"resolver, depth {cfg.depth}, with contact impulses": passes(quiet, True),
       f"+ friction (depth {cfg.depth})": passes(cfg, True),
-      "step (integration, status)": lambda w: step_module._step(w, cfg, None),
+      "step (integration, status)": lambda w: stepping._step(w, cfg, None),
   }
 
 

@@ -39,7 +39,7 @@ def test_console_script_runs_and_rejects_bad_flags():
   assert bad.returncode == 2 and "must be a positive integer" in bad.stderr
 
 
-@pytest.mark.parametrize("name", ["world", "config", "step", "reference"])
+@pytest.mark.parametrize("name", ["world", "config", "stepping", "status", "reference"])
 def test_docstring_examples(name):
   module = importlib.import_module(f"jaxchain.{name}")
   result = doctest.testmod(module, extraglobs={"jc": jaxchain}, optionflags=doctest.ELLIPSIS)

@@ -5,7 +5,7 @@ from jaxchain.broadphase import GridSpec
 from jaxchain.config import Config
 from jaxchain.geometry import Candidates
 from jaxchain.status import check
-from jaxchain.step import Trajectory, make_step, resolve, rollout, step
+from jaxchain.stepping import Trajectory, make_step, resolve, rollout, step
 from jaxchain.world import World, stack
 
 __all__ = [

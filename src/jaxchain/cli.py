@@ -14,7 +14,7 @@ from tqdm import tqdm
 
 from jaxchain import metrics, scenes, status
 from jaxchain.config import Config
-from jaxchain.step import rollout
+from jaxchain.stepping import rollout
 from jaxchain.world import stack
 
 # Status bit -> its name in `jaxchain.status` (FAST_BODY, ...), for the summary.

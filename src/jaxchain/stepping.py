@@ -3,6 +3,9 @@
 `step` is a flat pipeline of small stages. Every stage that a config switches
 off (gravity, friction, immovable handling, substeps) is left out by a Python
 `if` on the static config, so it is not traced at all.
+
+The module is `jaxchain.stepping`: `jaxchain.step` is the function (re-exported
+by the package), which would shadow a module of that name.
 """
 
 from __future__ import annotations
