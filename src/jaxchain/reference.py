@@ -229,12 +229,12 @@ def resolve_old(pos, half, mass, *, order=None, sweeps: int = 1) -> np.ndarray:
 def step(pos, vel, half, mass, *, friction=0.0, gravity=(0.0, -9.81), dt: float = 1 / 60,
          accel=None, skin: float = SKIN, substeps: int = 1, stick: float = 1e-3,
          tol: float = 1e-12, max_iterations: int = 10_000):
-  """One time step, as `jaxchain.step` defines it, in plain loops (float64).
+  """One time step, as `jaxchain.stepping.step` defines it, in plain loops (float64).
 
-  Per substep of `h = dt / substeps`:
+  Per substep of `sub_dt = dt / substeps`:
 
-  1. integrate (semi-implicit Euler): `v += accel h` (every body; that is how a
-     kinematic platform is driven), `v += g h` (movable bodies), `x_pred = x + v h`;
+  1. integrate (semi-implicit Euler): `v += accel sub_dt` (every body; that is how a
+     kinematic platform is driven), `v += g sub_dt` (movable bodies), `x_pred = x + v sub_dt`;
   2. resolve `x_pred` with `resolve(..., start=x)`;
   3. normal impulses on the links at the resolved positions (touching within the
      skin or overlapping): the perfectly inelastic projection, `min sum m |v' - v|^2`
@@ -279,12 +279,12 @@ def step(pos, vel, half, mass, *, friction=0.0, gravity=(0.0, -9.81), dt: float 
   accel = np.zeros((n, 2)) if accel is None else np.asarray(accel, np.float64)
   movable = ~np.isinf(mass)
   inv_mass = np.where(movable, 1.0 / np.where(movable, mass, 1.0), 0.0)
-  h = dt / substeps
+  sub_dt = dt / substeps
   for _ in range(substeps):
-    vel = vel + accel * h
-    vel[movable] += np.asarray(gravity, np.float64) * h
+    vel = vel + accel * sub_dt
+    vel[movable] += np.asarray(gravity, np.float64) * sub_dt
     start = pos
-    pos = resolve(start + vel * h, half, mass, skin=skin, start=start)
+    pos = resolve(start + vel * sub_dt, half, mass, skin=skin, start=start)
     scene = _Scene(pos, half, mass, skin, start)
     links = []  # (i, j, axis, sign): j lies in direction sign along axis from i.
     for i in range(n):

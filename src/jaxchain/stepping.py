@@ -148,40 +148,40 @@ def _switched_off(world: World, config: Config, physics: bool = True) -> jax.Arr
   return jnp.where(off, status.SWITCHED_OFF, 0)
 
 
-def _substep(world: World, config: Config, h: float, accel: jax.Array | None) -> World:
+def _substep(world: World, config: Config, sub_dt: float, accel: jax.Array | None) -> World:
   """Integrate (semi-implicit Euler), then resolution passes that move the bodies
   apart and update their velocities from the contact impulses and friction."""
   vel = world.vel
   if accel is not None:
-    vel = vel + jnp.where(world.active[:, None], accel * h, 0.0)
+    vel = vel + jnp.where(world.active[:, None], accel * sub_dt, 0.0)
   if config.has_gravity:
-    vel = vel + jnp.where(world.movable[:, None], world.gravity[None] * h, 0.0)
-  code = jnp.where(_too_fast(world, vel, h), status.FAST_BODY, 0)
-  predicted = world.pos + jnp.where(world.active[:, None], vel * h, 0.0)
+    vel = vel + jnp.where(world.movable[:, None], world.gravity[None] * sub_dt, 0.0)
+  code = jnp.where(_too_fast(world, vel, sub_dt), status.FAST_BODY, 0)
+  predicted = world.pos + jnp.where(world.active[:, None], vel * sub_dt, 0.0)
   pos, vel, found, crushed = _passes(world, predicted, config, start=world.pos, vel=vel)
   code = code | found | _finite_code(world, pos, vel) | _crushed_code(crushed)
   return dataclasses.replace(world, pos=pos, vel=vel, crushed=world.crushed | crushed,
                        status=world.status | code)
 
 
-def _too_fast(world: World, vel: jax.Array, h: float) -> jax.Array:
+def _too_fast(world: World, vel: jax.Array, sub_dt: float) -> jax.Array:
   """Whether some body moves, in one substep, at least its own half-extent plus the
   smallest half-extent of any body along an axis: past that its centre can cross a
   thin body's centre, and the contact would push it out on the far side."""
   thinnest = jnp.min(jnp.where(world.active[:, None], world.half, jnp.inf), axis=0, initial=jnp.inf)
   reach = world.half + thinnest[None]
-  return jnp.any(world.active[:, None] & (jnp.abs(vel) * h >= reach))
+  return jnp.any(world.active[:, None] & (jnp.abs(vel) * sub_dt >= reach))
 
 
 def _step(world: World, config: Config, accel: jax.Array | None) -> World:
-  h = config.dt / config.substeps
+  sub_dt = config.dt / config.substeps
   # Library code uses dataclasses.replace: World.replace validates concrete values, and
   # under jax.disable_jit a NaN must become NON_FINITE, not an exception.
   world = dataclasses.replace(world, crushed=jnp.zeros_like(world.crushed),  # ORed over substeps.
                               status=world.status | _switched_off(world, config))
   if config.substeps == 1:
-    return _substep(world, config, h, accel)
-  return lax.fori_loop(0, config.substeps, lambda _, w: _substep(w, config, h, accel), world)
+    return _substep(world, config, sub_dt, accel)
+  return lax.fori_loop(0, config.substeps, lambda _, w: _substep(w, config, sub_dt, accel), world)
 
 
 @functools.partial(jax.jit, static_argnames="config")
