@@ -83,12 +83,12 @@ def for_world(cls, world, /, **overrides):
     if need.substeps > MAX_SUBSTEPS:
       raise ValueError(need.message(base.dt))
     derived["substeps"] = need.substeps
-  broadphase = overrides.get("broadphase", "auto")
-  if broadphase in ("auto", "grid") and "grid" not in overrides:
-    if broadphase == "grid" or n > DENSE_MAX_BODIES:
-      spec = broadphase.allocate(world, base.skin)
+  kind = overrides.get("broadphase", "auto")  # Not `broadphase`: that is the module.
+  if kind in ("auto", "grid") and "grid" not in overrides:
+    if kind == "grid" or n > DENSE_MAX_BODIES:
+      spec = allocate(world, base.skin)
       crowded = spec.row_size > n / 4
-      derived.update(grid=spec, broadphase="dense" if crowded and broadphase == "auto" else "grid")
+      derived.update(grid=spec, broadphase="dense" if crowded and kind == "auto" else "grid")
     else:
       derived.update(broadphase="dense")
   chosen = base.replace(**{**derived, **{k: v for k, v in overrides.items() if k in derived_keys}})
@@ -97,8 +97,8 @@ def for_world(cls, world, /, **overrides):
   if not ("depth" in overrides and "links" in overrides):  # Else nothing to measure.
     movable = world.active & (world.inv_mass > 0)
     chain_found, links_found = measure(world.pos, world.half, world.active, movable,
-                                          np.int32(cap), spec=chosen.grid if uses_grid else None,
-                                          skin=base.skin)
+                                       np.int32(cap), spec=chosen.grid if uses_grid else None,
+                                       skin=base.skin)
     derived["depth"] = min(cap, max(cls.depth, 2 * int(np.max(chain_found, initial=0))))
     row = chosen.grid.row_size if uses_grid else n
     links = max(MIN_LINKS, 2 * int(np.max(links_found, initial=0)))
