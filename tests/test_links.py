@@ -31,6 +31,7 @@ def test_first_set_finds_the_first_entries_of_each_row(m, limit, seed):
   rng = np.random.default_rng(seed)
   sel = rng.random((4, 6, m)) < rng.uniform(0, 1, (4, 6, 1))
   slot, valid, overflow = map(np.asarray, first_set(jnp.asarray(sel), limit=limit))
+  slot, valid = np.moveaxis(slot, 0, -1), np.moveaxis(valid, 0, -1)  # Slot-major -> per row.
   for row in np.ndindex(4, 6):
     want = np.flatnonzero(sel[row])[:limit]
     np.testing.assert_array_equal(slot[row][valid[row]], want)
@@ -39,7 +40,7 @@ def test_first_set_finds_the_first_entries_of_each_row(m, limit, seed):
 
 
 def test_first_set_under_jit_and_vmap_matches_one_world_at_a_time():
-  # The packing is a matrix product followed by reductions: the pattern jax 0.10.2
+  # The packing is a matrix product followed by elementwise peels: the pattern jax 0.10.2
   # miscompiles on CPU under vmap (jax-ml/jax#39103); batched must equal unbatched.
   sel = jnp.asarray(np.random.default_rng(0).random((16, 4, 12, 30)) < 0.2)
   batched = jax.jit(jax.vmap(lambda s: geometry._first_set(s, 3)))(sel)

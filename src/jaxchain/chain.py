@@ -2,7 +2,7 @@
 
 One pass over a fixed candidate table (DESIGN.md section 3):
 
-1. contacts (`geometry.contacts`), sorted by direction into a `[4, n, l]` link
+1. contacts (`geometry.contacts`), sorted by direction into a `[l, 4, n]` link
    table (`geometry.link_table`; `l = Config.links`, or the candidate row), so
    with a compact table every hop below gathers only real links;
 2. backing, K hops: the mass of the unit behind each body in each direction,
@@ -49,6 +49,29 @@ def safe_divide(num: jax.Array, den: jax.Array, default: float = 0.0) -> jax.Arr
   return jnp.where(ok, num / jnp.where(ok, den, 1.0), default)
 
 
+def repeat(hop, init, times: int, converge: bool = False):
+  """`times` applications of `hop` (a pytree to the same pytree) from `init`.
+
+  With `converge` (forward-only), a `while_loop` that stops as soon as a hop changes
+  nothing: every hop loop of the resolver is a fixed-point iteration, so the answer is
+  the same as `times` hops, bit for bit, but a world whose chains are short stops
+  early (under `vmap`, once every world in the batch has). Not reverse-differentiable.
+  """
+  if not converge:
+    return lax.fori_loop(0, times, lambda _, x: hop(x), init)
+
+  def step(state):
+    k, x, _ = state
+    y = hop(x)
+    changed = jnp.any(jnp.stack([jnp.any(a != b) for a, b in
+                                 zip(jax.tree_util.tree_leaves(x), jax.tree_util.tree_leaves(y))]))
+    return k + 1, y, changed
+
+  _, out, _ = lax.while_loop(lambda s: s[2] & (s[0] < times), step,
+                             (jnp.zeros((), jnp.int32), init, jnp.ones((), bool)))
+  return out
+
+
 def body_mass(inv_mass: jax.Array, active: jax.Array) -> jax.Array:
   """`[n]` mass of active movable bodies, 0 for immovable or padding ones."""
   return jnp.where(active, safe_divide(1.0, inv_mass), 0.0)
@@ -64,14 +87,14 @@ class Pass(NamedTuple):
     overflow: bool, some body had more links in one direction than `links` keeps.
     crushed: `[n]` bool, movable bodies in a penetrating contact whose two units both
       lean on immovable bodies (see `displacement`).
-    links: the pass's link table (`[4, n, l]`).
+    links: the pass's link table (`[l, 4, n]`).
     dvel: with `vel`: `[n, 2]` velocity change from the link impulses; else None.
-    impulse: with `vel`: `[4, n, l]` compressive impulse (momentum) on each link, equal
+    impulse: with `vel`: `[l, 4, n]` compressive impulse (momentum) on each link, equal
       in both rows of a movable pair; else None.
-    jammed: `[4, n, l]` bool, links whose two units both lean on immovable bodies.
+    jammed: `[l, 4, n]` bool, links whose two units both lean on immovable bodies.
     shared: with `vel`: `[4, n]` friction units, the mass that slides with each body
       along the other axis (`_link_impulses`); else None.
-    sticking: with `vel`: `[4, n, l]` bool, the links those units are made of.
+    sticking: with `vel`: `[l, 4, n]` bool, the links those units are made of.
     scaled: bool, the energy guard scaled the impulses down (`energy_scale < 1`).
   """
 
@@ -89,7 +112,8 @@ class Pass(NamedTuple):
 
 
 def backing(front: geometry.Links, mass: jax.Array, immovable: jax.Array, depth: int, *,
-            track_immovable: bool = True, split: jax.Array | None = None):
+            track_immovable: bool = True, split: jax.Array | None = None,
+            converge: bool = False):
   """Unit masses and "leans on something immovable" flags, `depth` hops.
 
   `M_d(i) = m_i + sum over j in front of i along d of M_d(j) * split_d(j)` and
@@ -102,34 +126,32 @@ def backing(front: geometry.Links, mass: jax.Array, immovable: jax.Array, depth:
     `(unit_mass, leans, short)`: `[4, n]` each; `short` says where one hop more would
     still change a value (the chain is longer than `depth`).
   """
-  def hop(_, carry):
+  def hop(carry):
     unit_mass, leans = carry
     share = unit_mass if split is None else unit_mass * split
-    if not track_immovable:
-      return mass[None] + jnp.sum(jnp.where(front.mask, front.gather(share), 0.0), -1), leans
-    # One gather for both: the flag rides along as a second float channel.
-    ahead = front.gather(jnp.stack([share, leans.astype(unit_mass.dtype)]))
-    unit_mass = mass[None] + jnp.sum(jnp.where(front.mask, ahead[0], 0.0), axis=-1)
-    leans = immovable[None] | jnp.any(front.mask & (ahead[1] > 0), axis=-1)
+    unit_mass = mass[None] + front.reduce("sum", share, lambda k, x: jnp.where(front.mask[k], x, 0.0))
+    if track_immovable:
+      leans = immovable[None] | front.reduce("any", leans, lambda k, x: front.mask[k] & x)
     return unit_mass, leans
 
   unit_mass = jnp.broadcast_to(mass, (geometry.NUM_DIRECTIONS,) + mass.shape)
   leans = jnp.broadcast_to(immovable, unit_mass.shape)
-  unit_mass, leans = lax.fori_loop(0, depth, hop, (unit_mass, leans))
-  more_mass, more_leans = hop(0, (unit_mass, leans))
+  unit_mass, leans = repeat(hop, (unit_mass, leans), depth, converge)
+  more_mass, more_leans = hop((unit_mass, leans))
   return unit_mass, leans, (more_mass != unit_mass) | (more_leans != leans)
 
 
 def behind(x: jax.Array) -> jax.Array:
-  """`[..., 4, n]` -> `[..., 4, n, 1]`: for entry `(d, i, .)` of a link table, the
+  """`[..., 4, n]` -> `[..., 1, 4, n]`: for entry `(., d, i)` of a link table, the
   value of row i along the opposite direction (the unit behind i when i pushes along d)."""
-  return x[..., geometry.OPPOSITE, :][..., None]
+  return geometry.opposite(x, -2)[..., None, :, :]
 
 
 def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: jax.Array,
                  cand: Candidates, *, depth: int, skin: float, links: int | None = None,
                  track_immovable: bool = True, start: jax.Array | None = None,
-                 vel: jax.Array | None = None, stick: float = 0.0) -> Pass:
+                 vel: jax.Array | None = None, stick: float = 0.0,
+                 converge: bool = False) -> Pass:
   """The displacement one resolution pass applies to every body, and with `vel` the
   contact impulses that make the velocities follow it.
 
@@ -183,15 +205,15 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
     A `Pass`.
   """
   c = geometry.contacts(pos, half, cand, skin, start)
-  # [4, n, l]: j in front of i along d. An immovable body's row is never needed: its
+  # [l, 4, n]: j in front of i along d. An immovable body's row is never needed: its
   # flag decides every split it is in, and it never moves.
   movable = ~immovable
   front, overflow = geometry.link_table(c, cand, links, rows=movable)
-  back = front.reversed()  # [4, n, l]: j behind i along d, i.e. j pushes i along d.
+  back = front.reversed()  # [l, 4, n]: j behind i along d, i.e. j pushes i along d.
 
   # 2. Backing: unit mass (and immovable flag) in front of each body, K hops.
   unit_mass, leans, unit_short = backing(front, mass, immovable, depth,
-                                         track_immovable=track_immovable)
+                                         track_immovable=track_immovable, converge=converge)
 
   # 3. Split each contact. Entry (d, i, j): j is in front of i along d, i moves along
   # e = d ^ 1; i's unit is the one behind it (M_e(i)), j's the one in front of j (M_d(j)).
@@ -204,29 +226,29 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   weight = safe_divide(mass_j, mass_i + mass_j, default=0.5)
   weight = jnp.where(leans_j, 1.0, weight)
   weight = jnp.where(leans_i, 0.0, weight)
-  crushed = movable & jnp.any(jammed & (depth_now > 0), axis=(0, 2))
+  crushed = movable & jnp.any(jammed & (depth_now > 0), axis=(0, 1))
   # [k, 4, n, l]: how far i is pushed along e by this contact beyond j's own push. Across
   # a gap (a link within the skin) i moves only once j has closed half of it. A crushed
   # contact moves its two bodies only, half its depth each, not their units (which
   # lean on immovable bodies): a crush spreads over the jammed row step by step.
   shares = [jnp.where(front.overlap > 0, jnp.where(jammed, 0.0, depth_now * weight),
                       0.5 * front.overlap)]
-  crush_push = jnp.max(jnp.where(jammed, 0.5 * depth_now, 0.0), axis=-1, initial=0.0)
-  crush_push = crush_push[geometry.OPPOSITE]
+  crush_push = jnp.max(jnp.where(jammed, 0.5 * depth_now, 0.0), axis=0, initial=0.0)
+  crush_push = geometry.opposite(crush_push)
   if vel is not None:
     m_dir = _along(vel)
-    approach = jnp.where(front.mask, m_dir[..., None] - front.gather(m_dir), 0.0)
+    approach = jnp.where(front.mask, m_dir[None] - front.gather(m_dir), 0.0)
     shares.append(jnp.where(approach > 0, approach * jnp.where(jammed, 0.0, weight), approach))
-  share = jnp.stack(shares)[:, geometry.OPPOSITE]  # Rows of `back`: i pushed along d by j.
+  share = geometry.opposite(jnp.stack(shares), 2)  # Rows of `back`: i pushed along d by j.
 
   # 4. Forward push, K + 1 hops of max-plus along each direction.
 
   def push_hop(disp, share):
-    pushed = jnp.where(back.mask, back.gather(disp) + share, 0.0)
-    return jnp.where(movable[None, None], jnp.max(pushed, axis=-1, initial=0.0), 0.0)
+    pushed = back.reduce("max", disp, lambda k, x: jnp.where(back.mask[k], x + share[:, k], 0.0))
+    return jnp.where(movable[None, None], pushed, 0.0)
 
   disp = jnp.zeros((share.shape[0],) + unit_mass.shape, pos.dtype)
-  disp = lax.fori_loop(0, depth + 1, lambda _, x: push_hop(x, share), disp)
+  disp = repeat(lambda x: push_hop(x, share), disp, depth + 1, converge)
   # Reporting only: the position channel alone decides whether a push was cut short.
   push_short = jnp.any(push_hop(disp[:1], share[:1]) != disp[:1])
   exhausted = lax.stop_gradient(backing_short | push_short)
@@ -238,9 +260,10 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   # Links whose two bodies slide past each other slower than `stick` move
   # together along the other axis: they form the units friction moves.
   t_dir = _along(vel[:, ::-1])  # Tangential velocity: y for links along x, x along y.
-  sliding = jnp.where(front.mask, t_dir[..., None] - front.gather(t_dir), 0.0)
+  sliding = jnp.where(front.mask, t_dir[None] - front.gather(t_dir), 0.0)
   sticking = front.mask & (jnp.abs(sliding) <= stick)
-  impulse, shared, tree = _link_impulses(net[1], front, mass, leans, jammed, sticking, depth)
+  impulse, shared, tree = _link_impulses(net[1], front, mass, leans, jammed, sticking, depth,
+                                         converge)
   inv_mass = safe_divide(jnp.ones_like(mass), mass)
   free = front.mask & ~jammed
 
@@ -257,13 +280,13 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   # keep every impulse >= 0 and equal in both rows: on a tree the impulses are already
   # the solution and stay; in a fan they pull a body the estimate left approaching or
   # flying apart back to rest against its partners.
-  k = jnp.sum(front.mask, axis=(0, 2)).astype(pos.dtype)
+  k = jnp.sum(front.mask, axis=(0, 1)).astype(pos.dtype)
   split_inv = jnp.broadcast_to(k * inv_mass, unit_mass.shape)
-  stiffness = split_inv[..., None] + front.gather(split_inv)
+  stiffness = split_inv[None] + front.gather(split_inv)
 
   def refine(_, lam):
     v_dir = _along(vel + velocity_change(lam))
-    closing = v_dir[..., None] - front.gather(v_dir)
+    closing = v_dir[None] - front.gather(v_dir)
     return jnp.where(free, jnp.maximum(lam + safe_divide(closing, stiffness), 0.0), 0.0)
 
   impulse_final = lax.fori_loop(0, REFINE, refine, impulse)
@@ -285,12 +308,12 @@ def energy_scale(vel: jax.Array, change: jax.Array, impulse: jax.Array, front: g
 
   Args:
     vel: `[n, 2]` velocities before the update; `change`: `[n, 2]` the update.
-    impulse: `[4, n, l]` impulses of entries `(d, i, j)`, pushing i against d (normal
+    impulse: `[l, 4, n]` impulses of entries `(d, i, j)`, pushing i against d (normal
       impulses; `v_dir` the velocities along each direction, `[4, n]`), or any signed
       per-link impulse whose partner velocity `v_dir` gives the platform's work.
   """
   dtype = vel.dtype
-  fixed = front.gather(jnp.broadcast_to(immovable.astype(dtype), v_dir.shape)) > 0
+  fixed = front.gather_bodies(immovable)
   platform_work = -jnp.sum(jnp.where(front.mask & fixed, impulse * front.gather(v_dir), 0.0))
   first = jnp.sum(mass[:, None] * vel * change) - platform_work
   second = jnp.sum(mass[:, None] * change * change)
@@ -304,7 +327,8 @@ def _along(x: jax.Array) -> jax.Array:
 
 
 def _link_impulses(change: jax.Array, front: geometry.Links, mass: jax.Array,
-                   leans: jax.Array, jammed: jax.Array, sticking: jax.Array, depth: int):
+                   leans: jax.Array, jammed: jax.Array, sticking: jax.Array, depth: int,
+                   converge: bool = False):
   """One compressive impulse per link that carries the velocity changes `change`.
 
   The impulse through link (i, j) along d is the momentum change of everything j
@@ -320,25 +344,25 @@ def _link_impulses(change: jax.Array, front: geometry.Links, mass: jax.Array,
   slides with i along the other axis (`jaxchain.velocity.friction`).
 
   Returns:
-    `(impulse, units, tree)`: `[4, n, l]` impulses (momentum), `>= 0`, equal in the
+    `(impulse, units, tree)`: `[l, 4, n]` impulses (momentum), `>= 0`, equal in the
     rows of both bodies; `[4, n]` friction units; `[n]` bool, bodies all of whose links
     got the same impulse from both sides (as on a tree).
   """
   dtype = mass.dtype
-  count = jnp.sum(front.mask, axis=-1).astype(dtype)  # [4, n]: c_d(i).
-  split = safe_divide(jnp.ones_like(count), count)[geometry.OPPOSITE]  # 1 / c_e(j) at (d, j).
-  stick_count = jnp.sum(sticking, axis=-1).astype(dtype)
-  stick_split = safe_divide(jnp.ones_like(count), stick_count)[geometry.OPPOSITE]
+  count = jnp.sum(front.mask, axis=0).astype(dtype)  # [4, n]: c_d(i).
+  split = geometry.opposite(safe_divide(jnp.ones_like(count), count))  # 1 / c_e(j) at (d, j).
+  stick_count = jnp.sum(sticking, axis=0).astype(dtype)
+  stick_split = geometry.opposite(safe_divide(jnp.ones_like(count), stick_count))
   own = jnp.stack([mass[None] * _along(change), jnp.broadcast_to(mass, count.shape)])
   mask = jnp.stack([front.mask, sticking])
 
-  def hop(_, carry):
+  def hop(carry):
     q, units = carry
-    ahead = front.gather(jnp.stack([jnp.where(leans, 0.0, q * split), units * stick_split]))
-    total = own + jnp.sum(jnp.where(mask, ahead, 0.0), axis=-1)
+    ahead = jnp.stack([jnp.where(leans, 0.0, q * split), units * stick_split])
+    total = own + front.reduce("sum", ahead, lambda k, x: jnp.where(mask[:, k], x, 0.0))
     return total[0], total[1]
 
-  q, units = lax.fori_loop(0, depth, hop, (own[0], own[1]))
+  q, units = repeat(hop, (own[0], own[1]), depth, converge)
   r = q * split  # Momentum per pusher.
   r_j, r_i = front.gather(r), behind(r)
   leans_j, leans_i = front.gather(leans), behind(leans)
@@ -346,12 +370,12 @@ def _link_impulses(change: jax.Array, front: geometry.Links, mass: jax.Array,
   impulse = jnp.where(leans_j, r_i, jnp.where(leans_i, r_j, both))
   # Where both sides are free the two sums agree on a tree (up to rounding).
   agree = leans_j | leans_i | (jnp.abs(r_j - r_i) <= 1e-5 * jnp.maximum(jnp.abs(r_j), jnp.abs(r_i)))
-  ok = jnp.all(agree | ~front.mask, axis=(0, 2))
+  ok = jnp.all(agree | ~front.mask, axis=(0, 1))
   return jnp.where(front.mask & ~jammed, jnp.maximum(impulse, 0.0), 0.0), units, ok
 
 
 def apply_impulses(impulse: jax.Array, inv_mass: jax.Array) -> jax.Array:
-  """`[n, 2]` velocity change from compressive link impulses `[4, n, l]`:
+  """`[n, 2]` velocity change from compressive link impulses `[l, 4, n]`:
   entry `(d, i, .)` pushes i against d."""
-  total = jnp.sum(impulse, axis=-1)  # [4, n]
+  total = jnp.sum(impulse, axis=-3)  # [4, n]
   return inv_mass[:, None] * jnp.stack([total[1] - total[0], total[3] - total[2]], axis=-1)

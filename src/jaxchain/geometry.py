@@ -9,17 +9,27 @@ Directions are numbered `0: +x, 1: -x, 2: +y, 3: -y`; `d ^ 1` is the opposite.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxchain.gather import take
+
 DIRECTIONS = ("+x", "-x", "+y", "-y")
 NUM_DIRECTIONS = 4
 OPPOSITE = np.array([1, 0, 3, 2])  # d -> d ^ 1, as a static index.
-ALONG_Y = np.array([False, False, True, True])[:, None, None]  # Per direction: its axis is y.
-_WORD_BITS = 24  # Bits packed per float32 word in `_first_set` (exact below 2^24).
+_WORD_BITS = 24  # Bits packed per word in `_first_set`.
+
+
+def opposite(x: jax.Array, axis: int = 0) -> jax.Array:
+  """`x` with its direction axis (size 4) permuted `d -> d ^ 1`: `x[..., OPPOSITE, ...]`
+  as a reshape and a reversal, which XLA runs as a copy (an index gather is slower)."""
+  axis = axis % x.ndim
+  pairs = x.reshape(x.shape[:axis] + (2, 2) + x.shape[axis + 1:])
+  return jnp.flip(pairs, axis + 1).reshape(x.shape)
 
 
 @jax.tree_util.register_dataclass
@@ -43,6 +53,8 @@ class Candidates:
     """Partner values of `x` with bodies on the last axis: `[..., n]` -> `[..., n, m]`."""
     if self.idx is None:
       return jnp.broadcast_to(x[..., None, :], x.shape[:-1] + (x.shape[-1], x.shape[-1]))
+    if x.ndim == 1:
+      return take(x, self.idx)
     return x[..., self.idx]
 
   def gather_bodies(self, x: jax.Array) -> jax.Array:
@@ -115,23 +127,29 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
     start: optional `[n, 2]` centres at the start of the step.
   """
   n = pos.shape[0]
-  pos_j, half_j = cand.gather_bodies(pos), cand.gather_bodies(half)
-  delta = pos_j - pos[:, None, :]
-  o = overlap(pos[:, None, :], half[:, None, :], pos_j, half_j)
-  use_y = o[..., 1] < o[..., 0]
+  # One [n, m] array per coordinate: a trailing axis of 2 would leave XLA:CPU's
+  # vector units mostly idle.
+  col = lambda x, k: x[:, k][:, None]
+  partner = lambda x, k: cand.gather(x[:, k])
+  dx, dy = partner(pos, 0) - col(pos, 0), partner(pos, 1) - col(pos, 1)
+  hx, hy = col(half, 0) + partner(half, 0), col(half, 1) + partner(half, 1)
+  ox, oy = hx - jnp.abs(dx), hy - jnp.abs(dy)
+  use_y = oy < ox
   if start is not None:
-    start_j = cand.gather_bodies(start)
-    delta0 = start_j - start[:, None, :]
-    o0 = overlap(start[:, None, :], half[:, None, :], start_j, half_j)
-    separated = jnp.min(o0, axis=-1) <= 0
-    use_y = jnp.where(separated, impact_axis(o0, o, use_y, skin), use_y)
-    delta = jnp.where(separated[..., None], delta0, delta)
-  o_axis, o_other = along_axis(o, use_y)
-  d_axis, _ = along_axis(delta, use_y)
+    dx0, dy0 = partner(start, 0) - col(start, 0), partner(start, 1) - col(start, 1)
+    ox0, oy0 = hx - jnp.abs(dx0), hy - jnp.abs(dy0)
+    separated = (ox0 <= 0) | (oy0 <= 0)
+    use_y = jnp.where(separated, _impact_axis(ox0, oy0, ox, oy, use_y, skin), use_y)
+    dx, dy = jnp.where(separated, dx0, dx), jnp.where(separated, dy0, dy)
+  o_axis, o_other = jnp.where(use_y, oy, ox), jnp.where(use_y, ox, oy)
+  d_axis = jnp.where(use_y, dy, dx)
   self_idx = jnp.arange(n, dtype=jnp.int32)[:, None]
   positive = (d_axis > 0) | ((d_axis == 0) & (cand.partner_index() > self_idx))
   link = cand.mask & (o_other > 0) & (o_axis >= -skin)
   direction = 2 * use_y.astype(jnp.int32) + (~positive).astype(jnp.int32)
+  # Materialised once: every direction of the link table reads them, and fused into
+  # its [4, n, m] consumers they would be recomputed four times.
+  link, direction, o_axis = lax.optimization_barrier((link, direction, o_axis))
   depth = jnp.where(link, jnp.maximum(o_axis, 0.0), 0.0)
   return Contacts(link=link, direction=direction, depth=depth, overlap=o_axis)
 
@@ -151,12 +169,19 @@ def impact_axis(o0: jax.Array, o1: jax.Array, tie: jax.Array, skin: float) -> ja
   or equal times) take `tie` (the smaller-overlap rule). Gradient-safe: the division is
   guarded.
   """
-  closing = o1 - o0
-  t = jnp.where(o0 > 0, 0.0, _safe_ratio(-o0, closing))
-  t = jnp.where((o0 <= 0) & (o1 <= 0), 2.0, t)  # Still apart along this axis.
-  by_time = jnp.where(t[..., 1] == t[..., 0], tie, t[..., 1] > t[..., 0])
-  level = jnp.abs(o0) <= skin
-  return jnp.where(level[..., 0] == level[..., 1], by_time, level[..., 1])
+  return _impact_axis(o0[..., 0], o0[..., 1], o1[..., 0], o1[..., 1], tie, skin)
+
+
+def _impact_axis(ox0, oy0, ox1, oy1, tie, skin):
+  """`impact_axis` with the two axes as separate arrays."""
+  def start_time(o0, o1):  # The fraction of the motion at which the projections meet.
+    t = jnp.where(o0 > 0, 0.0, _safe_ratio(-o0, o1 - o0))
+    return jnp.where((o0 <= 0) & (o1 <= 0), 2.0, t)  # Still apart along this axis.
+
+  tx, ty = start_time(ox0, ox1), start_time(oy0, oy1)
+  by_time = jnp.where(ty == tx, tie, ty > tx)
+  level_x, level_y = jnp.abs(ox0) <= skin, jnp.abs(oy0) <= skin
+  return jnp.where(level_x == level_y, by_time, level_y)
 
 
 def _safe_ratio(num: jax.Array, den: jax.Array) -> jax.Array:
@@ -167,17 +192,19 @@ def _safe_ratio(num: jax.Array, den: jax.Array) -> jax.Array:
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Links:
-  """Every body's links, per direction: `[4, n, l]` tables the chain hops walk.
+  """Every body's links, per direction: `[l, 4, n]` tables the chain hops walk.
 
-  Row `(d, i)` lists the partners j that lie in direction d from i (i pushes them
-  along d). A compact table (`idx` set) keeps at most `l` of them, the first by
-  candidate slot; without `idx` the table is the candidate table itself masked per
-  direction (`l = m`, nothing can be dropped).
+  Entry `(k, d, i)` is the k-th partner j that lies in direction d from i (i pushes
+  it along d). The slot axis `k` comes first: a hop gathers one `[4, n]` slab per slot
+  and reduces the slabs elementwise, the layout XLA:CPU runs fastest
+  (`jaxchain.gather`). A compact table (`idx` set) keeps at most `l` partners per row,
+  the first by candidate slot; without `idx` the table is the candidate table itself
+  masked per direction (`l = m`, nothing can be dropped).
 
   Attributes:
-    idx: `[4, n, l]` int32 partner indices, or None: the candidate slots (`cand`).
-    mask: `[4, n, l]` bool, which entries are links.
-    overlap: `[4, n, l]` signed overlap along the direction's axis (`Contacts.overlap`).
+    idx: `[l, 4, n]` int32 partner indices, or None: the candidate slots (`cand`).
+    mask: `[l, 4, n]` bool, which entries are links.
+    overlap: `[l, 4, n]` signed overlap along the direction's axis (`Contacts.overlap`).
     cand: the candidate table the links were taken from.
   """
 
@@ -187,23 +214,62 @@ class Links:
   cand: Candidates
 
   def gather(self, x: jax.Array) -> jax.Array:
-    """`[..., 4, n]` per direction and body -> `[..., 4, n, l]`: `x[..., d, partner]`."""
+    """`[..., 4, n]` per direction and body -> `[..., l, 4, n]`: `x[..., d, partner]`."""
+    if self.idx is None:  # Dense: slot k is body k.
+      return jnp.broadcast_to(jnp.swapaxes(x, -1, -2)[..., None], x.shape[:-2] + self.mask.shape)
+    return take(x.reshape(-1), self._flat_index(x.shape)).reshape(x.shape[:-2] + self.mask.shape)
+
+  def reduce(self, kind: str, x: jax.Array, term) -> jax.Array:
+    """`kind` ("sum", "max" or "any") over the slots of `term(k, x_k)`, `[..., 4, n]`.
+
+    `x_k` is `x` (`[..., 4, n]`) gathered at slot k (`x[..., d, partner(k, d, i)]`);
+    `term` combines it with the slot's other values (`mask[k]`, say). "max" starts
+    from 0 and "any" from False. A compact table runs one gather per slot and folds
+    the slots with elementwise operations, so XLA fuses each slot's gather, term and
+    fold into one loop and never materialises the `[l, 4, n]` terms; a dense table
+    (`l = m`) gathers by broadcasting and reduces along the slot axis (`k` is then
+    `slice(None)`).
+    """
     if self.idx is None:
-      return self.cand.gather(x)
-    n = x.shape[-1]
-    flat = self.idx + n * jnp.arange(NUM_DIRECTIONS, dtype=self.idx.dtype)[:, None, None]
-    return x.reshape(x.shape[:-2] + (-1,))[..., flat]
+      t = term(slice(None), self.gather(x))
+      if kind == "sum":
+        return jnp.sum(t, axis=-3)
+      if kind == "max":
+        return jnp.max(t, axis=-3, initial=0.0)
+      return jnp.any(t, axis=-3)
+    fold = {"sum": jnp.add, "max": jnp.maximum, "any": jnp.logical_or}[kind]
+    out = None
+    for k, x_k in enumerate(self._slot_values(x)):
+      t = term(k, x_k)
+      out = t if out is None else fold(out, t)
+    if kind == "max":
+      out = jnp.maximum(out, 0.0)
+    return out
+
+  def _slot_values(self, x: jax.Array) -> list[jax.Array]:
+    """Per slot k, `x` (`[..., 4, n]`) gathered at the slot's partners, `[..., 4, n]`."""
+    flat, table = self._flat_index(x.shape), x.reshape(-1)
+    return [take(table, flat[..., k, :, :]) for k in range(self.mask.shape[0])]
+
+  def _flat_index(self, shape: tuple[int, ...]) -> jax.Array:
+    """`[..., l, 4, n]` indices into `x.reshape(-1)` for `x` of `shape` (`[..., 4, n]`)."""
+    n = shape[-1]
+    flat = self.idx + n * jnp.arange(NUM_DIRECTIONS, dtype=self.idx.dtype)[None, :, None]
+    lead = shape[:-2]
+    rows = int(np.prod(lead, dtype=int))
+    offsets = (NUM_DIRECTIONS * n * jnp.arange(rows, dtype=flat.dtype)).reshape(lead + (1, 1, 1))
+    return flat.reshape((1,) * len(lead) + flat.shape) + offsets
 
   def gather_bodies(self, x: jax.Array) -> jax.Array:
-    """`[n, f]` per body -> partner values `[4, n, l, f]` (`[1, n, m, f]` uncompacted)."""
+    """`[n]` per body -> partner values `[l, 4, n]`."""
     if self.idx is None:
-      return self.cand.gather_bodies(x)[None]
-    return x[self.idx]
+      return jnp.broadcast_to(x[:, None, None], self.mask.shape)
+    return take(x, self.idx)
 
   def reversed(self) -> Links:
     """The table of partners behind: row `(d, i)` lists the bodies that push i along d."""
-    idx = None if self.idx is None else self.idx[OPPOSITE]
-    return Links(idx, self.mask[OPPOSITE], self.overlap[OPPOSITE], self.cand)
+    idx = None if self.idx is None else opposite(self.idx, 1)
+    return Links(idx, opposite(self.mask, 1), opposite(self.overlap, 1), self.cand)
 
 
 def by_direction(c: Contacts, rows: jax.Array | None = None) -> jax.Array:
@@ -234,46 +300,53 @@ def link_table(c: Contacts, cand: Candidates, limit: int | None,
     `(links, overflow)`, overflow a bool scalar.
   """
   sel = by_direction(c, rows)
-  m = sel.shape[-1]
+  n, m = sel.shape[-2:]
   if limit is None or limit >= m:
-    overlap = jnp.broadcast_to(c.overlap[None], sel.shape)
-    return Links(None, sel, overlap, cand), jnp.zeros((), bool)
-  slot, mask, overflow = _first_set(sel, limit)
-  partner = slot if cand.idx is None else jnp.take_along_axis(cand.idx[None], slot, axis=-1)
-  overlap = jnp.take_along_axis(c.overlap[None], slot, axis=-1)
+    if cand.idx is not None:  # A candidate table of partner indices, kept whole.
+      idx = jnp.broadcast_to(cand.idx.T[:, None, :], (m, NUM_DIRECTIONS, n))
+      overlap = jnp.broadcast_to(c.overlap.T[:, None, :], idx.shape)
+      return Links(idx, jnp.moveaxis(sel, -1, 0), overlap, cand), jnp.zeros((), bool)
+    overlap = jnp.broadcast_to(c.overlap.T[:, None, :], (m, NUM_DIRECTIONS, n))
+    return Links(None, jnp.moveaxis(sel, -1, 0), overlap, cand), jnp.zeros((), bool)
+  slot, mask, overflow = _first_set(sel, limit)  # [limit, 4, n]
+  entry = slot + m * jnp.arange(n, dtype=slot.dtype)[None, None]  # Into the flat [n, m] tables.
+  partner = slot if cand.idx is None else take(cand.idx.reshape(-1), entry)
+  overlap = take(c.overlap.reshape(-1), entry)
   return Links(partner, mask, overlap, cand), overflow
 
 
 def _first_set(sel: jax.Array, limit: int) -> tuple[jax.Array, jax.Array, jax.Array]:
   """Positions of the first `limit` set entries along the last axis of `sel`.
 
-  Packs each row into words of 24 bits and peels the lowest set bit `limit` times,
-  so the cost is `O(m + limit * m / 24)` per row rather than a sort. The packing is
-  a float32 matrix product (sums of distinct powers of two below 2^24 are exact):
-  unlike a reduction, XLA does not fuse the producer of `sel` into it, which would
-  recompute the contacts for every bit.
+  Packs each row into words of 24 bits and peels the lowest set bit `limit` times, each peel a few elementwise
+  operations per word (no `argmax`, a variadic reduction XLA:CPU runs slowly), so the
+  cost is `O(m + limit * m / 24)` per row rather than a sort.
 
   Returns:
-    `(slot, valid, overflow)`: `[..., limit]` int32 positions (0 where not valid),
-    `[..., limit]` bool, and whether any row had more than `limit` set entries.
+    `(slot, valid, overflow)`: `[limit, ...]` int32 positions (0 where not valid),
+    `[limit, ...]` bool (slot-major, as `Links` keeps them), and whether any row had
+    more than `limit` set entries.
   """
   m = sel.shape[-1]
-  words_per_row = -(-m // _WORD_BITS)
+  num_words = -(-m // _WORD_BITS)
   k = np.arange(m)
-  powers = np.zeros((m, words_per_row), np.float32)
+  powers = np.zeros((m, num_words), np.float32)
   powers[k, k // _WORD_BITS] = 2.0 ** (k % _WORD_BITS)
-  words = jnp.dot(sel.astype(jnp.float32), powers, precision=lax.Precision.HIGHEST)
-  words = words.astype(jnp.uint32)
-  word_ids = jnp.arange(words_per_row, dtype=jnp.int32).reshape((1,) * (sel.ndim - 1) + (-1,))
-
-  def peel(words, _):
-    first = jnp.argmax(words != 0, axis=-1).astype(jnp.int32)  # First word with a bit left.
-    at = word_ids == first[..., None]
-    word = jnp.sum(jnp.where(at, words, jnp.uint32(0)), axis=-1, dtype=jnp.uint32)
-    lowest = word & (~word + jnp.uint32(1))
-    valid = word != 0
-    slot = jnp.where(valid, _WORD_BITS * first + 31 - lax.clz(lowest).astype(jnp.int32), 0)
-    return jnp.where(at, words ^ lowest[..., None], words), (slot, valid)
-
-  words, (slot, valid) = lax.scan(peel, words, None, length=limit)
-  return jnp.moveaxis(slot, 0, -1), jnp.moveaxis(valid, 0, -1), jnp.any(words != 0)
+  # A float32 matrix product (sums of distinct powers of two below 2^24 are exact):
+  # XLA:CPU runs it several times faster than the same sum as a reduction.
+  packed = jnp.dot(sel.astype(jnp.float32), powers, precision=lax.Precision.HIGHEST)
+  packed = packed.astype(jnp.uint32)
+  words = [packed[..., w] for w in range(num_words)]
+  none = jnp.int32(num_words * _WORD_BITS)  # Above every position: "no bit left".
+  slots, valids = [], []
+  for _ in range(limit):
+    lowest = [x & (~x + jnp.uint32(1)) for x in words]
+    at = [jnp.where(x != 0, _WORD_BITS * w + 31 - lax.clz(low).astype(jnp.int32), none)
+          for w, (x, low) in enumerate(zip(words, lowest))]
+    first = functools.reduce(jnp.minimum, at)
+    words = [jnp.where(a == first, x ^ low, x) for x, low, a in zip(words, lowest, at)]
+    valid = first < none
+    slots.append(jnp.where(valid, first, 0))
+    valids.append(valid)
+  left = functools.reduce(jnp.logical_or, [x != 0 for x in words])
+  return jnp.stack(slots), jnp.stack(valids), jnp.any(left)

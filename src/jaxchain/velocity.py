@@ -36,7 +36,8 @@ SLIP = 1e-6
 
 
 def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficient: jax.Array,
-             shared: jax.Array, sticking: jax.Array, mass: jax.Array, *, depth: int) -> jax.Array:
+             shared: jax.Array, sticking: jax.Array, mass: jax.Array, *, depth: int,
+             converge: bool = False) -> jax.Array:
   """Coulomb friction impulses per link, acting on units, with mass splitting.
 
   Link `(d, i, j)` rubs along the other axis. What moves with i there is i's unit on
@@ -56,11 +57,11 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
   Args:
     vel: `[n, 2]` velocities after the normal impulses.
     front: the link table the normal impulses were computed on.
-    normal: `[4, n, l]` normal impulse per link (momentum units).
+    normal: `[l, 4, n]` normal impulse per link (momentum units).
     coefficient: `[n]` friction coefficient per body; a pair uses the geometric mean
       `sqrt(mu_i mu_j)` (as Box2D does): 0 if either is 0.
     shared: `[4, n]` friction units (`chain.Pass.shared`), 0 for immovable bodies.
-    sticking: `[4, n, l]` bool, the links those units are made of (`chain.Pass.sticking`).
+    sticking: `[l, 4, n]` bool, the links those units are made of (`chain.Pass.sticking`).
     mass: `[n]` masses of movable bodies, 0 for the others (`chain.body_mass`).
     depth: hops a unit's motion travels (static).
 
@@ -70,29 +71,28 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
   """
   dtype = vel.dtype
   tangent = jnp.stack([vel[:, 1], vel[:, 1], vel[:, 0], vel[:, 0]])  # [4, n]
-  sliding = jnp.where(front.mask, tangent[..., None] - front.gather(tangent), 0.0)
-  mu_pair = _safe_sqrt(coefficient[None, :, None] *
-                       front.gather(jnp.broadcast_to(coefficient, tangent.shape)))
+  sliding = jnp.where(front.mask, tangent[None] - front.gather(tangent), 0.0)
+  mu_pair = _safe_sqrt(coefficient[None, None] * front.gather_bodies(coefficient))
   budget = jnp.where(front.mask, mu_pair * normal, 0.0)
   active = (budget > 0) & (jnp.abs(sliding) > SLIP)
-  k = jnp.broadcast_to(jnp.sum(active, axis=(0, 2)).astype(dtype), tangent.shape)  # [4, n]
-  unit_i = shared[geometry.OPPOSITE]  # [4, n]: at (d, i), i's unit along e.
+  k = jnp.broadcast_to(jnp.sum(active, axis=(0, 1)).astype(dtype), tangent.shape)  # [4, n]
+  unit_i = geometry.opposite(shared)  # [4, n]: at (d, i), i's unit along e.
   inv_i = safe_divide(k, unit_i)  # k_i / S_e(i): 0 for an immovable body.
   inv_j = front.gather(safe_divide(k, shared))  # k_j / S_d(j).
-  inv_eff = inv_i[..., None] + inv_j
+  inv_eff = inv_i[None] + inv_j
   impulse = jnp.where(active, jnp.clip(safe_divide(sliding, inv_eff), -budget, budget), 0.0)
   # Entry (d, i): i's unit along e changes its tangential velocity by -impulse / S_e(i).
-  source = safe_divide(-jnp.sum(impulse, axis=-1), unit_i)[geometry.OPPOSITE]  # At (e, i).
+  source = geometry.opposite(safe_divide(-jnp.sum(impulse, axis=0), unit_i))  # At (e, i).
   back = front.reversed()
-  carries = sticking[geometry.OPPOSITE]  # Rows of `back`: k behind j, sticking.
-  count = jnp.sum(carries, axis=-1).astype(dtype)  # Sticking bodies behind each body.
+  carries = geometry.opposite(sticking, 1)  # Rows of `back`: k behind j, sticking.
+  count = jnp.sum(carries, axis=0).astype(dtype)  # Sticking bodies behind each body.
   movable = jnp.any(shared > 0, axis=0)[None]
 
-  def hop(_, total):  # A unit moves rigidly: each body takes the mean of its pushers'.
-    behind = jnp.sum(jnp.where(carries, back.gather(total), 0.0), axis=-1)
+  def hop(total):  # A unit moves rigidly: each body takes the mean of its pushers'.
+    behind = back.reduce("sum", total, lambda k, x: jnp.where(carries[k], x, 0.0))
     return jnp.where(movable, source + safe_divide(behind, count), 0.0)
 
-  total = lax.fori_loop(0, depth, hop, jnp.where(movable, source, 0.0))
+  total = chain.repeat(hop, jnp.where(movable, source, 0.0), depth, converge)
   # Units along x (e = 0, 1) slide along y, units along y along x.
   change = jnp.stack([total[2] + total[3], total[0] + total[1]], axis=-1)
   # Energy guard, as for the normal impulses: friction may only take energy, beyond
@@ -115,7 +115,7 @@ def crush(vel: jax.Array, front: geometry.Links, jammed: jax.Array, movable: jax
   Args:
     vel: `[n, 2]` velocities.
     front: link table.
-    jammed: `[4, n, l]` links whose two units both lean on immovable bodies.
+    jammed: `[l, 4, n]` links whose two units both lean on immovable bodies.
     movable: `[n]` bool.
 
   Returns:
@@ -124,8 +124,8 @@ def crush(vel: jax.Array, front: geometry.Links, jammed: jax.Array, movable: jax
   """
   on_axis = jnp.stack([vel[:, 0], vel[:, 0], vel[:, 1], vel[:, 1]])  # [4, n]
   partner = jnp.where(front.mask, front.gather(on_axis), 0.0)
-  count = jnp.sum(front.mask, axis=-1)
+  count = jnp.sum(front.mask, axis=0)
   per_axis = lambda x: jnp.stack([x[0] + x[1], x[2] + x[3]], axis=-1)  # [4, n] -> [n, 2]
-  mean = safe_divide(per_axis(jnp.sum(partner, axis=-1)), per_axis(count).astype(vel.dtype))
-  hit = per_axis(jnp.any(jammed, axis=-1)) & movable[:, None]
+  mean = safe_divide(per_axis(jnp.sum(partner, axis=0)), per_axis(count).astype(vel.dtype))
+  hit = per_axis(jnp.any(jammed, axis=0)) & movable[:, None]
   return jnp.where(hit, mean, vel)
