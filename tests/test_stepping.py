@@ -180,3 +180,33 @@ def test_rollout_controls_shape_is_checked():
   world = box_on_floor()
   with pytest.raises(ValueError, match="controls must have shape"):
     jc.rollout(world, jc.Config(), 4, jnp.zeros((3, 2, 2)))
+
+
+def test_converge_mode_gives_the_same_answers_bit_for_bit():
+  # Worlds whose chains end after different numbers of hops: a row of 8 boxes pushed
+  # into a wall, the same row with gaps (short chains) and a stack with friction.
+  row = scenes.push_chain(8, overlap=0.2)
+  vel = np.zeros((10, 2))
+  vel[0, 0] = 3.0
+  spread = row.pos.copy()
+  spread[2:, 0] += 0.3 * np.arange(8)
+  worlds = jc.stack([
+      row.world(vel, friction=0.3),
+      scenes.Scene(spread, row.half, row.mass).world(vel, friction=0.3),
+      scenes.stack(9, overlaps=0.1).world(friction=0.5),
+  ])
+  cfg = jc.Config(depth=9, links=4)
+  roll = lambda c: jax.jit(jax.vmap(lambda w: jc.rollout(w, c, 6)))(worlds)
+  (fixed, fixed_traj), (early, early_traj) = roll(cfg), roll(cfg.replace(converge=True))
+  for a, b in [(fixed.pos, early.pos), (fixed.vel, early.vel), (fixed_traj.pos, early_traj.pos),
+               (fixed.status, early.status)]:
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+  assert float(jnp.max(jnp.abs(fixed.pos - worlds.pos))) > 0.05  # The scenes do move.
+
+
+def test_converge_mode_is_forward_only():
+  world = scenes.push_chain(3).world()
+  loss = lambda x, c: jc.step(world.replace(pos=world.pos.at[0, 0].set(x)), c).pos[-1, 0]
+  assert np.isfinite(jax.grad(loss)(0.0, jc.Config(depth=4)))
+  with pytest.raises(ValueError, match="while_loop"):
+    jax.grad(loss)(0.0, jc.Config(depth=4, converge=True))

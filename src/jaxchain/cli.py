@@ -67,7 +67,8 @@ def status_summary(world) -> dict[str, int]:
 
 
 def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
-         iterations: int, friction: float, push: float, progress: bool) -> dict:
+         iterations: int, friction: float, push: float, progress: bool,
+         converge: bool = True) -> dict:
   """Runs the platformer demo and returns the figures it prints.
 
   Returns:
@@ -82,7 +83,7 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   layouts = [scenes.platformer(rng) for _ in range(batch)]
   first = layouts[0]
   worlds = stack([p.scene.world(friction=friction) for p in layouts])
-  overrides = dict(iterations=iterations)
+  overrides = dict(iterations=iterations, converge=converge)
   if depth is not None:
     overrides["depth"] = depth
   config = Config.for_world(worlds, **overrides)
@@ -93,7 +94,7 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
 
   run = jax.jit(jax.vmap(lambda w, u: rollout(w, config, chunk, u)[0]))
   print(f"jaxchain demo: {batch} worlds x {n} bodies, {steps} steps of {config.dt:.4f} s, "
-        f"depth {config.depth}, iterations {config.iterations}, friction {friction:g}, "
+        f"depth {config.depth}{' (converging)' if config.converge else ''}, iterations {config.iterations}, friction {friction:g}, "
         f"device {jax.devices()[0].device_kind}")
   t0 = time.perf_counter()
   compiled = run.lower(worlds, controls).compile()
@@ -160,6 +161,9 @@ def main(argv=None) -> int:
                  help="Coulomb friction of every body (default 0.3)")
   p.add_argument("--push", type=_finite_float, default=20.0,
                  help="player's push acceleration (default 20)")
+  p.add_argument("--converge", action=argparse.BooleanOptionalAction, default=True,
+                 help="forward-only hop loops that stop once every world has converged "
+                      "(same answers; the demo takes no gradients; default on)")
   p.add_argument("--no-progress", action="store_true", help="no progress bar")
   args = parser.parse_args(argv)
   if args.command == "demo":
@@ -167,7 +171,7 @@ def main(argv=None) -> int:
     if args.steps % chunk:
       p.error(f"--steps ({args.steps}) must be a multiple of --chunk ({chunk})")
     demo(args.batch, args.steps, args.chunk, args.seed, args.depth, args.iterations,
-         args.friction, args.push, progress=not args.no_progress)
+         args.friction, args.push, progress=not args.no_progress, converge=args.converge)
   return 0
 
 

@@ -51,6 +51,11 @@ class Config:
       and the extra links (the last by candidate order) are ignored, in the
       resolution and in friction, which reads the same table. `for_world` sizes it
       from the scene.
+    converge: forward-only mode: every hop loop stops as soon as a hop changes
+      nothing (a `while_loop`; under `vmap`, once every world in the batch has), with
+      the same answer as `depth` hops, bit for bit. Faster when chains are shorter
+      than `depth`; not reverse-differentiable (`jax.grad` raises), so leave it off
+      for gradients.
   """
 
   dt: float = 1 / 60
@@ -64,6 +69,7 @@ class Config:
   immovable: bool = True
   grid: GridSpec | None = None
   links: int | None = None
+  converge: bool = False
 
   def __post_init__(self):
     for name, example in (("gravity", "gravity=(0.0, -9.81)"), ("friction", "friction=0.3")):
@@ -96,9 +102,11 @@ class Config:
     if not isinstance(self.broadphase, str) or self.broadphase not in BROADPHASES:
       raise ValueError(f"Config.broadphase: expected one of {BROADPHASES}, got {self.broadphase!r}")
     object.__setattr__(self, "broadphase", str(self.broadphase))
-    if not isinstance(self.immovable, (bool, np.bool_)):
-      raise ValueError(f"Config.immovable: expected a bool, got {self.immovable!r}")
-    object.__setattr__(self, "immovable", bool(self.immovable))
+    for name in ("immovable", "converge"):
+      v = getattr(self, name)
+      if not isinstance(v, (bool, np.bool_)):
+        raise ValueError(f"Config.{name}: expected a bool, got {v!r}")
+      object.__setattr__(self, name, bool(v))
     if self.grid is not None and not isinstance(self.grid, GridSpec):
       raise ValueError(f"Config.grid: expected a GridSpec or None, got {type(self.grid).__name__}")
     if self.broadphase == "grid" and self.grid is None:

@@ -62,7 +62,7 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
   pass_fn = functools.partial(chain.displacement, half=world.half, mass=mass,
                               immovable=~movable, depth=config.depth, skin=config.skin,
                               links=config.links, track_immovable=config.immovable, start=start,
-                              stick=velocity.STICK)
+                              stick=velocity.STICK, converge=config.converge)
 
   def one_pass(_, carry):
     p, v, code, _, crushed = carry
@@ -77,7 +77,8 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
         v = velocity.crush(v, out.links, out.jammed, movable)
       if config.has_friction:
         v, rubbed = velocity.friction(v, out.links, out.impulse, world.friction, out.shared,
-                                      out.sticking, mass, depth=config.depth)
+                                      out.sticking, mass, depth=config.depth,
+                                      converge=config.converge)
         scaled = scaled | rubbed
       code = code | jnp.where(scaled, status.IMPULSES_SCALED, 0)
     return p + out.disp, v, code, out.exhausted, crushed
