@@ -32,7 +32,6 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxchain import geometry
-from jaxchain.geometry import Candidates
 
 # Jacobi refinement steps on the contact impulses after the chain's estimate.
 REFINE = 4
@@ -84,10 +83,8 @@ class Pass(NamedTuple):
     disp: `[n, 2]` displacement; exactly 0 for immovable bodies.
     exhausted: bool, the K hops did not reach the end of some chain (one hop more
       would still have changed a unit mass or a push).
-    overflow: bool, some body had more links in one direction than `links` keeps.
     crushed: `[n]` bool, movable bodies in a penetrating contact whose two units both
       lean on immovable bodies (see `displacement`).
-    links: the pass's link table (`[l, 4, n]`).
     dvel: with `vel`: `[n, 2]` velocity change from the link impulses; else None.
     impulse: with `vel`: `[l, 4, n]` compressive impulse (momentum) on each link, equal
       in both rows of a movable pair; else None.
@@ -100,9 +97,7 @@ class Pass(NamedTuple):
 
   disp: jax.Array
   exhausted: jax.Array
-  overflow: jax.Array
   crushed: jax.Array
-  links: geometry.Links
   dvel: jax.Array | None
   impulse: jax.Array | None
   jammed: jax.Array
@@ -147,18 +142,16 @@ def behind(x: jax.Array) -> jax.Array:
   return geometry.opposite(x, -2)[..., None, :, :]
 
 
-def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: jax.Array,
-                 cand: Candidates, *, depth: int, skin: float, links: int | None = None,
-                 track_immovable: bool = True, start: jax.Array | None = None,
-                 vel: jax.Array | None = None, stick: float = 0.0,
-                 converge: bool = False) -> Pass:
+def displacement(front: geometry.Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
+                 track_immovable: bool = True, vel: jax.Array | None = None,
+                 stick: float = 0.0, converge: bool = False) -> Pass:
   """The displacement one resolution pass applies to every body, and with `vel` the
   contact impulses that make the velocities follow it.
 
   Rules beyond DESIGN.md section 3, each mirrored by `jaxchain.reference`:
 
-  * Contact axis: from the motion since `start` for pairs separated there
-    (`geometry.contacts`).
+  * Contact axis: from the motion since the start of the step for pairs separated
+    there (`geometry.contacts`, in the link table `front`).
   * Crushing: a penetrating contact whose two units both lean on immovable bodies
     cannot be resolved by moving a unit. Each of its two bodies, if movable, moves by
     half its depth, alone (immovable ones still never move), so a body squeezed
@@ -186,29 +179,22 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   the start adds no velocity.
 
   Args:
-    pos: `[n, 2]` centres.
-    half: `[n, 2]` half-extents.
+    front: the pass's link table (`geometry.links`), rows of immovable bodies empty.
     mass: `[n]` masses of movable bodies, 0 for the others (`body_mass`).
     immovable: `[n]` bool, bodies that never move (immovable or padding).
-    cand: candidate table, `[n, m]`.
     depth: chain depth K (static).
-    skin: link tolerance (static).
-    links: links kept per body and direction (static; `geometry.link_table`).
     track_immovable: trace the "leans on something immovable" flag (static);
       `False` is only correct when no linked body is immovable.
-    start: optional `[n, 2]` centres at the start of the step (contact axes).
     vel: optional `[n, 2]` velocities (after gravity and input) to act on.
     stick: linked bodies whose tangential velocities differ by at most this count as
       moving together for friction (static).
+    converge: forward-only hop loops that stop once nothing changes (`repeat`).
 
   Returns:
     A `Pass`.
   """
-  c = geometry.contacts(pos, half, cand, skin, start)
-  # [l, 4, n]: j in front of i along d. An immovable body's row is never needed: its
-  # flag decides every split it is in, and it never moves.
   movable = ~immovable
-  front, overflow = geometry.link_table(c, cand, links, rows=movable)
+  dtype = mass.dtype
   back = front.reversed()  # [l, 4, n]: j behind i along d, i.e. j pushes i along d.
 
   # 2. Backing: unit mass (and immovable flag) in front of each body, K hops.
@@ -247,7 +233,7 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
     pushed = back.reduce("max", disp, lambda k, x: jnp.where(back.mask[k], x + share[:, k], 0.0))
     return jnp.where(movable[None, None], pushed, 0.0)
 
-  disp = jnp.zeros((share.shape[0],) + unit_mass.shape, pos.dtype)
+  disp = jnp.zeros((share.shape[0],) + unit_mass.shape, dtype)
   disp = repeat(lambda x: push_hop(x, share), disp, depth + 1, converge)
   # Reporting only: the position channel alone decides whether a push was cut short.
   push_short = jnp.any(push_hop(disp[:1], share[:1]) != disp[:1])
@@ -255,8 +241,7 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   disp = disp.at[0].set(jnp.where(movable[None], jnp.maximum(disp[0], crush_push), 0.0))
   net = jnp.stack([disp[:, 0] - disp[:, 1], disp[:, 2] - disp[:, 3]], axis=-1)  # [k, n, 2]
   if vel is None:
-    return Pass(net[0], exhausted, overflow, crushed, front, None, None, jammed, None, None,
-                jnp.zeros((), bool))
+    return Pass(net[0], exhausted, crushed, None, None, jammed, None, None, jnp.zeros((), bool))
   # Links whose two bodies slide past each other slower than `stick` move
   # together along the other axis: they form the units friction moves.
   t_dir = _along(vel[:, ::-1])  # Tangential velocity: y for links along x, x along y.
@@ -280,7 +265,7 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   # keep every impulse >= 0 and equal in both rows: on a tree the impulses are already
   # the solution and stay; in a fan they pull a body the estimate left approaching or
   # flying apart back to rest against its partners.
-  k = jnp.sum(front.mask, axis=(0, 1)).astype(pos.dtype)
+  k = jnp.sum(front.mask, axis=(0, 1)).astype(dtype)
   split_inv = jnp.broadcast_to(k * inv_mass, unit_mass.shape)
   stiffness = split_inv[None] + front.gather(split_inv)
 
@@ -292,8 +277,8 @@ def displacement(pos: jax.Array, half: jax.Array, mass: jax.Array, immovable: ja
   impulse_final = lax.fori_loop(0, REFINE, refine, impulse)
   change = velocity_change(impulse_final)
   scale = energy_scale(vel, change, impulse_final, front, mass, immovable, m_dir)
-  return Pass(net[0], exhausted, overflow, crushed, front, scale * change, scale * impulse_final,
-              jammed, shared, sticking, lax.stop_gradient(scale < 1))
+  return Pass(net[0], exhausted, crushed, scale * change, scale * impulse_final, jammed, shared,
+              sticking, lax.stop_gradient(scale < 1))
 
 
 def energy_scale(vel: jax.Array, change: jax.Array, impulse: jax.Array, front: geometry.Links,

@@ -272,6 +272,27 @@ class Links:
     return Links(idx, opposite(self.mask, 1), opposite(self.overlap, 1), self.cand)
 
 
+def links(pos: jax.Array, half: jax.Array, cand: Candidates, *, skin: float,
+          limit: int | None, rows: jax.Array, start: jax.Array | None = None
+          ) -> tuple[Links, jax.Array]:
+  """The contacts-and-links stage of a pass: `contacts`, then `link_table`.
+
+  Args:
+    pos, half: `[n, 2]`.
+    cand: the pass's candidate table.
+    skin: link tolerance (static).
+    limit: links kept per body and direction (static, `Config.links`).
+    rows: `[n]` bool, the bodies whose rows are kept: the movable ones (an immovable
+      body's row is never needed: its flag decides every split it is in, and it never
+      moves).
+    start: optional `[n, 2]` centres at the start of the step (contact axes).
+
+  Returns:
+    `(links, overflow)`: the `[l, 4, n]` table and whether a row lost links.
+  """
+  return link_table(contacts(pos, half, cand, skin, start), cand, limit, rows=rows)
+
+
 def by_direction(c: Contacts, rows: jax.Array | None = None) -> jax.Array:
   """`[4, n, m]` bool: candidate k of body i is a link in direction d (in a kept row)."""
   dirs = jnp.arange(NUM_DIRECTIONS, dtype=c.direction.dtype)[:, None, None]

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxchain import broadphase, chain, status, velocity
+from jaxchain import broadphase, chain, geometry, status, velocity
 from jaxchain.config import Config
 from jaxchain.world import World
 
@@ -49,39 +49,39 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
             vel: jax.Array | None = None):
   """`config.iterations` resolution passes from `pos`.
 
-  Every pass builds its candidates and contacts once, at the positions it starts
-  from, and all its stages read them: the chain's positions, and with `vel` the
-  contact impulses (`chain.displacement` with `vel`), the crush rule and
-  friction, in that order. So a pass's velocities always follow its positions.
+  A pass is a flat pipeline, one call a stage, each reading what the stages before it
+  built at the positions the pass starts from: candidates (broadphase), contacts and
+  links (`geometry.links`, built once and read by every later stage), resolution
+  (`chain.displacement`: the push hops carry the positions and, with `vel`, the
+  contact impulses in the same hops), velocities (the impulses, then the crush rule),
+  friction, flags. So a pass's velocities always follow its positions.
 
   Returns:
     `(pos, vel, status, crushed)` (`vel` None without `vel`).
   """
   mass = chain.body_mass(world.inv_mass, world.active)
   movable = world.movable
-  pass_fn = functools.partial(chain.displacement, half=world.half, mass=mass,
-                              immovable=~movable, depth=config.depth, skin=config.skin,
-                              links=config.links, track_immovable=config.immovable, start=start,
-                              stick=velocity.STICK, converge=config.converge)
 
   def one_pass(_, carry):
     p, v, code, _, crushed = carry
     cand, found = broadphase.candidates(p, world, config)
-    out = pass_fn(p, cand=cand, vel=v)
-    code = code | found | jnp.where(out.overflow, status.LINK_OVERFLOW, 0)
-    crushed = crushed | out.crushed
+    front, overflow = geometry.links(p, world.half, cand, skin=config.skin, limit=config.links,
+                                     rows=movable, start=start)
+    out = chain.displacement(front, mass, ~movable, depth=config.depth,
+                             track_immovable=config.immovable, vel=v, stick=velocity.STICK,
+                             converge=config.converge)
+    scaled = out.scaled
     if v is not None:
       v = v + out.dvel
-      scaled = out.scaled
       if config.immovable:
-        v = velocity.crush(v, out.links, out.jammed, movable)
-      if config.has_friction:
-        v, rubbed = velocity.friction(v, out.links, out.impulse, world.friction, out.shared,
-                                      out.sticking, mass, depth=config.depth,
-                                      converge=config.converge)
-        scaled = scaled | rubbed
-      code = code | jnp.where(scaled, status.IMPULSES_SCALED, 0)
-    return p + out.disp, v, code, out.exhausted, crushed
+        v = velocity.crush(v, front, out.jammed, movable)
+    if v is not None and config.has_friction:
+      v, rubbed = velocity.friction(v, front, out.impulse, world.friction, out.shared,
+                                    out.sticking, mass, depth=config.depth,
+                                    converge=config.converge)
+      scaled = scaled | rubbed
+    code = code | found | _pass_flags(overflow, scaled)
+    return p + out.disp, v, code, out.exhausted, crushed | out.crushed
 
   zero = jnp.zeros((), jnp.int32)
   init = (pos, vel, zero, jnp.zeros((), bool), jnp.zeros(world.active.shape, bool))
@@ -89,6 +89,12 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
   # Only the last pass counts: earlier passes may leave work that later ones finish.
   code = code | jnp.where(exhausted, status.DEPTH_EXHAUSTED, 0)
   return p, v, code, crushed
+
+
+def _pass_flags(overflow: jax.Array, scaled: jax.Array) -> jax.Array:
+  """The status bits one pass raises: `LINK_OVERFLOW`, `IMPULSES_SCALED`."""
+  return (jnp.where(overflow, status.LINK_OVERFLOW, 0)
+          | jnp.where(scaled, status.IMPULSES_SCALED, 0))
 
 
 def _finite_code(world: World, *arrays: jax.Array) -> jax.Array:
