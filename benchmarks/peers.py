@@ -420,6 +420,8 @@ def room_rows(sizes, batches, repeats, peers, notes) -> list[dict]:
       else:
         notes.append("`Config.for_world` picks depth 8 at N=64 already: no separate depth=8 row.")
     settings += [("jaxchain", n, b, {}) for b in batches[n]]
+    # Forward-only (no gradients, as the peers): hop loops stop once every world has converged.
+    settings += [("jaxchain", n, b, dict(converge=True)) for b in batches[n]]
     settings += [(p.name, n, 1, {}) for p in peers]
   by_name = {p.name: p for p in peers}
   rows = []
@@ -431,7 +433,8 @@ def room_rows(sizes, batches, repeats, peers, notes) -> list[dict]:
       out, sec, comp = engine.run(scene, steps, record=False, repeats=repeats, batch=b)
       cfg = engine.cfg
       extra = (f"depth {cfg.depth}, {cfg.broadphase}, substeps {cfg.substeps}"
-               f"{', explicit depth' if over else ''}; status {status_names(engine.status)}")
+               f"{', explicit depth' if 'depth' in over else ''}"
+               f"{', converge (forward-only)' if cfg.converge else ''}; status {status_names(engine.status)}")
     else:
       engine = by_name[name]
       if name == "Jax2D" and n > JAX2D_MAX_N:

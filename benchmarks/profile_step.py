@@ -6,7 +6,12 @@ table, then the resolver passes at depth 0 with positions only and with the cont
 impulses, at full depth, with friction, and the full step. Differences between rows are
 the stages' costs. Scenes: the peers room (N unit boxes settled in a closed room,
 friction 0.5 on every body, `Config.for_world`, as in `peers.py`) and the demo platformer.
-Writes `results/profile.md`.
+
+Below the stages, the XLA operations of the full step by their share of its run time,
+from a `jax.profiler` trace of XLA:CPU's thunks (each a fused loop, a gather or a
+matrix product), named by the jax operation XLA fused the others into. Shares of one
+trace do not depend on how busy the machine is, unlike the stage rows. Writes
+`results/profile.md`.
 
     python benchmarks/profile_step.py            # about 2 minutes on 2 cores
     python benchmarks/profile_step.py --batch 256
@@ -15,7 +20,11 @@ Writes `results/profile.md`.
 from __future__ import annotations
 
 import argparse
+import collections
+import glob
 import pathlib
+import re
+import tempfile
 import statistics
 import time
 
@@ -81,6 +90,41 @@ def scene_worlds(name: str, batch: int) -> tuple[jc.World, jc.Config]:
   return jc.stack([world] * batch), cfg
 
 
+def op_shares(fn, worlds, top: int = 12, calls: int = 3) -> tuple[float, list]:
+  """The XLA:CPU operations of `fn(worlds)` by run time, from a profiler trace.
+
+  Returns:
+    `(total_s, rows)`: op time per call summed over threads, and `(name, jax op, share)`
+    for the `top` largest.
+  """
+  from jax._src import profiler as jax_profiler  # ProfileData reads the trace; no public path.
+
+  compiled = jax.jit(fn).lower(worlds).compile()
+  jax.block_until_ready(compiled(worlds))
+  with tempfile.TemporaryDirectory() as tmp:
+    with jax.profiler.trace(tmp):
+      for _ in range(calls):
+        jax.block_until_ready(compiled(worlds))
+    trace = glob.glob(f"{tmp}/**/*.xplane.pb", recursive=True)[0]
+    data = jax_profiler.ProfileData.from_serialized_xspace(pathlib.Path(trace).read_bytes())
+  ns = collections.Counter()
+  for plane in data.planes:
+    for line in plane.lines:
+      if not line.name.startswith("tf_XLA"):
+        continue
+      for ev in line.events:  # Thunks; the executor's and loops' own spans contain them.
+        if not ev.name.startswith(("ThunkExecutor", "while", "conditional", "call")):
+          ns[ev.name] += ev.duration_ns
+  hlo = compiled.as_text()
+
+  def jax_op(name):
+    m = re.search(r"\n\s*%?" + re.escape(name) + r" = [^\n]*op_name=\"([^\"]+)\"", hlo)
+    return m.group(1).rsplit("/", 1)[-1] if m else "-"
+
+  total = sum(ns.values())
+  return total / calls * 1e-9, [(k, jax_op(k), v / total) for k, v in ns.most_common(top)]
+
+
 def main():
   parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--batch", type=int, default=1024, help="worlds per batch")
@@ -104,7 +148,8 @@ def main():
       for stage, (fn, _) in compiled.items():
         times[stage].append(median_time(lambda: jax.block_until_ready(fn(worlds)), 1)[1])
     rows = [(stage, statistics.median(times[stage]), compiled[stage][1]) for stage in compiled]
-    tables[name] = (cfg, int(worlds.pos.shape[1]), rows)
+    full = list(stages(cfg).values())[-1]
+    tables[name] = (cfg, int(worlds.pos.shape[1]), rows, op_shares(jax.vmap(full), worlds))
   write(tables, args, header, time.perf_counter() - started)
 
 
@@ -117,7 +162,7 @@ def write(tables, args, header, wall_s) -> None:
       f"median of {args.repeats} rounds that time every stage once in turn, compile excluded. Each row adds stages to the one before, "
       "so the difference is what a stage costs.",
   ]
-  for name, (cfg, n, rows) in tables.items():
+  for name, (cfg, n, rows, ops) in tables.items():
     step_s = rows[-1][1]
     lines += [
         "",
@@ -136,9 +181,14 @@ def write(tables, args, header, wall_s) -> None:
       lines.append(f"| {stage} | {sec * 1e3:.2f} | {added * 1e3:+.2f} | {added / step_s:.0%} | "
                    f"{compile_s:.2f} |")
       before = sec
+    total_s, top = ops
+    lines += ["", f"XLA operations of the full step (trace: {total_s * 1e3:.1f} ms of op time per "
+              f"call, summed over threads; the largest {len(top)}):", "",
+              "| XLA op | jax op it computes | share |", "|---|---|---|"]
+    lines += [f"| `{op}` | `{jax_name}` | {share:.1%} |" for op, jax_name, share in top]
   lines += [
       "",
-      "Reading the rows: the link table is the compaction of contacts into `[4, n, links]`;",
+      "Reading the rows: the link table is the compaction of contacts into `[links, 4, n]`;",
       "the contact impulses are the velocity channel of the push hops plus the K hops that",
       "turn it into link impulses and friction units; `depth K` adds the hops beyond depth 0",
       "(backing K, push K + 1 with two channels, impulses K); friction adds its K transport",

@@ -22,6 +22,9 @@ DIRECTIONS = ("+x", "-x", "+y", "-y")
 NUM_DIRECTIONS = 4
 OPPOSITE = np.array([1, 0, 3, 2])  # d -> d ^ 1, as a static index.
 _WORD_BITS = 24  # Bits packed per word in `_first_set`.
+# `Links.reduce` unrolls its slots up to this many (`Config.links` is 4 to 8 from
+# `for_world`); longer rows reduce along the slot axis.
+UNROLL_SLOTS = 8
 
 
 def opposite(x: jax.Array, axis: int = 0) -> jax.Array:
@@ -228,9 +231,10 @@ class Links:
     the slots with elementwise operations, so XLA fuses each slot's gather, term and
     fold into one loop and never materialises the `[l, 4, n]` terms; a dense table
     (`l = m`) gathers by broadcasting and reduces along the slot axis (`k` is then
-    `slice(None)`).
+    `slice(None)`), and so does a table of more than `UNROLL_SLOTS` slots (a whole
+    grid row, `links=None`), whose unrolled slots would make the compile slow.
     """
-    if self.idx is None:
+    if self.idx is None or self.mask.shape[0] > UNROLL_SLOTS:
       t = term(slice(None), self.gather(x))
       if kind == "sum":
         return jnp.sum(t, axis=-3)
