@@ -152,9 +152,20 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
   direction = 2 * use_y.astype(jnp.int32) + (~positive).astype(jnp.int32)
   # Materialised once: every direction of the link table reads them, and fused into
   # its [4, n, m] consumers they would be recomputed four times.
-  link, direction, o_axis = lax.optimization_barrier((link, direction, o_axis))
+  code = jnp.where(link, direction, NUM_DIRECTIONS)
+  code, o_axis = _materialise(code), _materialise(o_axis)
+  link, direction = code < NUM_DIRECTIONS, jnp.minimum(code, NUM_DIRECTIONS - 1)
   depth = jnp.where(link, jnp.maximum(o_axis, 0.0), 0.0)
   return Contacts(link=link, direction=direction, depth=depth, overlap=o_axis)
+
+
+def _materialise(x: jax.Array) -> jax.Array:
+  """`x`, computed into memory once. XLA fuses cheap elementwise producers into each of
+  their consumers (recomputing them there), XLA:CPU drops `optimization_barrier`, and
+  its simplifier removes trivial reductions; a scatter it keeps, and never fuses into
+  a consumer. So `x` is scattered into zeros at its own positions (exact: `0 + x`)."""
+  last = jnp.arange(x.shape[-1])
+  return jnp.zeros_like(x).at[..., last].add(x, indices_are_sorted=True, unique_indices=True)
 
 
 def impact_axis(o0: jax.Array, o1: jax.Array, tie: jax.Array, skin: float) -> jax.Array:
