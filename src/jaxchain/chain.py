@@ -48,27 +48,45 @@ def safe_divide(num: jax.Array, den: jax.Array, default: float = 0.0) -> jax.Arr
   return jnp.where(ok, num / jnp.where(ok, den, 1.0), default)
 
 
-def repeat(hop, init, times: int, converge: bool = False):
+def repeat(hop, init, times: int, converge: bool = False, check: bool = False):
   """`times` applications of `hop` (a pytree to the same pytree) from `init`.
 
   With `converge` (forward-only), a `while_loop` that stops as soon as a hop changes
   nothing: every hop loop of the resolver is a fixed-point iteration, so the answer is
   the same as `times` hops, bit for bit, but a world whose chains are short stops
   early (under `vmap`, once every world in the batch has). Not reverse-differentiable.
+
+  With `check`, also returns where one hop more would still change a value (a pytree
+  of bool arrays like `init`: the chain is longer than `times`). The fixed loop runs
+  that hop after the loop; the converging loop knows it without one when it stopped
+  early (nothing changes), and otherwise runs it as its last iteration.
+
+  Returns:
+    The values after `times` hops, and with `check` the pytree of changes.
   """
+  changes = lambda x, y: jax.tree_util.tree_map(jnp.not_equal, x, y)
   if not converge:
-    return lax.fori_loop(0, times, lambda _, x: hop(x), init)
+    out = lax.fori_loop(0, times, lambda _, x: hop(x), init)
+    return (out, changes(out, hop(out))) if check else out
 
   def step(state):
-    k, x, _ = state
+    k, _, x, _ = state
     y = hop(x)
-    changed = jnp.any(jnp.stack([jnp.any(a != b) for a, b in
-                                 zip(jax.tree_util.tree_leaves(x), jax.tree_util.tree_leaves(y))]))
-    return k + 1, y, changed
+    changed = jnp.any(jnp.stack([jnp.any(c) for c in jax.tree_util.tree_leaves(changes(x, y))]))
+    return k + 1, x, y, changed
 
-  _, out, _ = lax.while_loop(lambda s: s[2] & (s[0] < times), step,
-                             (jnp.zeros((), jnp.int32), init, jnp.ones((), bool)))
-  return out
+  # (k, hop^(k-1), hop^k, whether the last hop changed anything); with `check` one hop
+  # past `times`, whose values are dropped.
+  last = times + 1 if check else times
+  k, before, after, changed = lax.while_loop(
+      lambda s: s[3] & (s[0] < last), step,
+      (jnp.zeros((), jnp.int32), init, init, jnp.ones((), bool)))
+  if not check:
+    return after
+  past = k > times  # Ran the check hop: `before` holds `times` hops, `after` one more.
+  out = jax.tree_util.tree_map(lambda b, a: jnp.where(past, b, a), before, after)
+  diff = jax.tree_util.tree_map(lambda b, a: past & changed & (b != a), before, after)
+  return out, diff
 
 
 def body_mass(inv_mass: jax.Array, active: jax.Array) -> jax.Array:
@@ -131,9 +149,8 @@ def backing(front: geometry.Links, mass: jax.Array, immovable: jax.Array, depth:
 
   unit_mass = jnp.broadcast_to(mass, (geometry.NUM_DIRECTIONS,) + mass.shape)
   leans = jnp.broadcast_to(immovable, unit_mass.shape)
-  unit_mass, leans = repeat(hop, (unit_mass, leans), depth, converge)
-  more_mass, more_leans = hop((unit_mass, leans))
-  return unit_mass, leans, (more_mass != unit_mass) | (more_leans != leans)
+  (unit_mass, leans), short = repeat(hop, (unit_mass, leans), depth, converge, check=True)
+  return unit_mass, leans, short[0] | short[1]
 
 
 def behind(x: jax.Array) -> jax.Array:
@@ -234,9 +251,9 @@ def displacement(front: geometry.Links, mass: jax.Array, immovable: jax.Array, *
     return jnp.where(movable[None, None], pushed, 0.0)
 
   disp = jnp.zeros((share.shape[0],) + unit_mass.shape, dtype)
-  disp = repeat(lambda x: push_hop(x, share), disp, depth + 1, converge)
+  disp, pushed_on = repeat(lambda x: push_hop(x, share), disp, depth + 1, converge, check=True)
   # Reporting only: the position channel alone decides whether a push was cut short.
-  push_short = jnp.any(push_hop(disp[:1], share[:1]) != disp[:1])
+  push_short = jnp.any(pushed_on[0])
   exhausted = lax.stop_gradient(backing_short | push_short)
   disp = disp.at[0].set(jnp.where(movable[None], jnp.maximum(disp[0], crush_push), 0.0))
   net = jnp.stack([disp[:, 0] - disp[:, 1], disp[:, 2] - disp[:, 3]], axis=-1)  # [k, n, 2]
