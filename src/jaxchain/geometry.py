@@ -162,10 +162,11 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
 def _materialise(x: jax.Array) -> jax.Array:
   """`x`, computed into memory once. XLA fuses cheap elementwise producers into each of
   their consumers (recomputing them there), XLA:CPU drops `optimization_barrier`, and
-  its simplifier removes trivial reductions; a scatter it keeps, and never fuses into
-  a consumer. So `x` is scattered into zeros at its own positions (exact: `0 + x`)."""
-  last = jnp.arange(x.shape[-1])
-  return jnp.zeros_like(x).at[..., last].add(x, indices_are_sorted=True, unique_indices=True)
+  its simplifier removes trivial reductions. A dynamic-update-slice at an offset it
+  cannot prove is 0 it keeps, as a copy into a buffer (the offset is always 0: an
+  update of the buffer's full size is clamped there)."""
+  zero = jnp.zeros((), jnp.int32) * jnp.isnan(x.reshape(-1)[0]).astype(jnp.int32)
+  return lax.dynamic_update_slice(jnp.zeros_like(x), x, (zero,) * x.ndim)
 
 
 def impact_axis(o0: jax.Array, o1: jax.Array, tie: jax.Array, skin: float) -> jax.Array:
