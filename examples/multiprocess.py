@@ -217,18 +217,20 @@ def worker(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     compiled = run.lower(worlds).compile()
     compile_s = time.perf_counter() - t0
-    times = []
+    times, cpu = [], []
     for _ in range(max(1, args.repeats)):
-      t0 = time.perf_counter()
+      t0, c0 = time.perf_counter(), time.process_time()
       final = jax.block_until_ready(compiled(worlds))
       times.append(time.perf_counter() - t0)
+      cpu.append(time.process_time() - c0)
     run_s = float(np.median(times))
+    cpu_per_s = float(np.sum(cpu) / np.sum(times))  # CPU seconds per wall second: cores busy.
     got = {k: np.asarray(multihost_utils.process_allgather(getattr(final, k), tiled=True))
            for k in ("pos", "vel", "status")}
   result = dict(process=me, processes=jax.process_count(), devices=jax.device_count(),
                 worlds=args.worlds, steps=args.steps, scene=args.scene, rows=[first, stop],
                 axis_type=args.axis_type, plain=args.plain, setup_s=setup_s, compile_s=compile_s,
-                run_s=run_s, world_steps_per_s=args.worlds * args.steps / run_s,
+                run_s=run_s, cpu_per_s=cpu_per_s, world_steps_per_s=args.worlds * args.steps / run_s,
                 depth=cfg.depth, links=cfg.links)
   ok = True
   if me == 0 and not args.no_check:
