@@ -28,3 +28,13 @@ def test_platformer_level_14_is_the_demo_scene():
 def test_platformer_level_rejects_too_few_bodies():
   with pytest.raises(ValueError, match="at least 9 bodies"):
     scenes.platformer_level(8)
+
+
+def test_lattice_room_starts_apart_inside_its_walls():
+  s = scenes.lattice_room(10, seed=3)
+  assert s.pos.shape == (14, 2) and np.isinf(s.mass[:4]).all() and (s.mass[4:] == 1).all()
+  boxes = s.pos[4:]
+  gaps = np.abs(boxes[:, None] - boxes[None]) - 1.0  # Unit boxes: centres 1 apart touch.
+  apart = np.max(gaps, axis=-1) > 0
+  assert apart[~np.eye(10, dtype=bool)].all()
+  assert (boxes[:, 1] - 0.5 > 0).all()  # Above the floor's top at y = 0.

@@ -166,6 +166,26 @@ def platformer_level(n: int, rng: np.random.Generator | None = None) -> Platform
   return platformer(rng, stacked=n - 9)
 
 
+def lattice_room(n: int, seed: int = 0) -> Scene:
+  """`n` unit boxes on a lattice of pitch 1.5 (x jittered by up to 0.2) in a closed room
+  (bodies 0-3 are the floor, ceiling and walls): the benchmarks' room of falling boxes.
+
+  Interior `[0, W] x [0, H]`: `ceil(sqrt(n))` columns, boxes start 0.5 above the
+  floor and 0.5 apart, so nothing overlaps at the start.
+  """
+  rng = np.random.default_rng(seed)
+  cols = int(np.ceil(np.sqrt(n)))
+  rows = int(np.ceil(n / cols))
+  w, h = 1.5 * cols + 0.5, 1.5 * rows + 1.5
+  k = np.arange(n)
+  boxes = np.stack([1.0 + 1.5 * (k % cols) + rng.uniform(-0.2, 0.2, n), 1.0 + 1.5 * (k // cols)], -1)
+  walls_pos = [[w / 2, -0.5], [w / 2, h + 0.5], [-0.5, h / 2], [w + 0.5, h / 2]]
+  walls_half = [[w / 2 + 1, 0.5], [w / 2 + 1, 0.5], [0.5, h / 2], [0.5, h / 2]]
+  pos = np.concatenate([walls_pos, boxes])
+  half = np.concatenate([walls_half, np.full((n, 2), 0.5)])
+  return Scene(pos, half, np.r_[np.full(4, INF), np.ones(n)])
+
+
 def box_room(rng: np.random.Generator, n: int, density: float = 0.35) -> Scene:
   """A closed room (floor, ceiling, two walls) holding `n - 4` movable boxes at
   constant density: the room's area grows with `n`, so the work per body does

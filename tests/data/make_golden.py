@@ -21,25 +21,10 @@ STEPS = 30
 DT = 1 / 60
 
 
-def room(n: int, seed: int = 0) -> scenes.Scene:
-  """`benchmarks/peers.py` `room(n)`: unit boxes on a jittered lattice in a closed room."""
-  rng = np.random.default_rng(seed)
-  cols = int(np.ceil(np.sqrt(n)))
-  rows = int(np.ceil(n / cols))
-  w, h = 1.5 * cols + 0.5, 1.5 * rows + 1.5
-  k = np.arange(n)
-  boxes = np.stack([1.0 + 1.5 * (k % cols) + rng.uniform(-0.2, 0.2, n), 1.0 + 1.5 * (k // cols)], -1)
-  walls_pos = [[w / 2, -0.5], [w / 2, h + 0.5], [-0.5, h / 2], [w + 0.5, h / 2]]
-  walls_half = [[w / 2 + 1, 0.5], [w / 2 + 1, 0.5], [0.5, h / 2], [0.5, h / 2]]
-  pos = np.concatenate([walls_pos, boxes])
-  half = np.concatenate([walls_half, np.full((n, 2), 0.5)])
-  return scenes.Scene(pos, half, np.r_[np.full(4, np.inf), np.ones(n)])
-
-
 def cases() -> dict[str, tuple[jc.World, dict, np.ndarray | None]]:
   """`{name: (world, config kwargs, controls [n, 2] or None)}`."""
   out = {}
-  w = room(64).world(friction=0.5)
+  w = scenes.lattice_room(64).world(friction=0.5)
   out["room64"] = (w, dict(depth=8, links=4), None)
   demo = scenes.platformer(np.random.default_rng(0))
   w = demo.scene.world(friction=0.5)
