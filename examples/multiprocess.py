@@ -90,32 +90,13 @@ def build_worlds(scene: str, first: int, stop: int):
     worlds = [jc.scenes.platformer(np.random.default_rng(b)).scene.world(friction=0.3)
               for b in range(first, stop)]
   else:
-    worlds = [_room(64, seed=b).world(friction=0.5) for b in range(first, stop)]
+    worlds = [jc.scenes.lattice_room(64, seed=b).world(friction=0.5) for b in range(first, stop)]
   return jc.stack(worlds)
 
 
 def config_overrides(scene: str) -> dict:
   """`Config.for_world` keywords of the workload: the demo's (forward-only hop loops)."""
   return dict(converge=True) if scene == "demo" else {}
-
-
-def _room(n: int, seed: int):
-  """`benchmarks/peers.py` `room(n)`: n unit boxes on a jittered lattice in a closed room."""
-  import numpy as np
-
-  import jaxchain as jc
-
-  rng = np.random.default_rng(seed)
-  cols = int(np.ceil(np.sqrt(n)))
-  rows = int(np.ceil(n / cols))
-  w, h = 1.5 * cols + 0.5, 1.5 * rows + 1.5
-  k = np.arange(n)
-  boxes = np.stack([1.0 + 1.5 * (k % cols) + rng.uniform(-0.2, 0.2, n), 1.0 + 1.5 * (k // cols)], -1)
-  walls_pos = [[w / 2, -0.5], [w / 2, h + 0.5], [-0.5, h / 2], [w + 0.5, h / 2]]
-  walls_half = [[w / 2 + 1, 0.5], [w / 2 + 1, 0.5], [0.5, h / 2], [0.5, h / 2]]
-  pos = np.concatenate([walls_pos, boxes])
-  half = np.concatenate([walls_half, np.full((n, 2), 0.5)])
-  return jc.scenes.Scene(pos, half, np.r_[np.full(4, np.inf), np.ones(n)])
 
 
 def make_rollout(scene: str, num_bodies: int, config, steps: int, wrap):
