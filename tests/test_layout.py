@@ -11,7 +11,7 @@ SRC = pathlib.Path(__file__).resolve().parents[1] / "src" / "jaxchain"
 
 # Every module of src/jaxchain (but the package's __init__), in dependency order: each
 # may import only modules before it.
-ORDER = ("reference", "gather", "status", "world", "scenes", "geometry", "metrics", "broadphase", "sizing",
+ORDER = ("reference", "gather", "sharding", "status", "world", "scenes", "geometry", "metrics", "broadphase", "sizing",
          "config", "chain", "velocity", "stepping", "cli")
 
 
