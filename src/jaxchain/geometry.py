@@ -165,6 +165,8 @@ def _materialise(x: jax.Array) -> jax.Array:
   its simplifier removes trivial reductions. A dynamic-update-slice at an offset it
   cannot prove is 0 it keeps, as a copy into a buffer (the offset is always 0: an
   update of the buffer's full size is clamped there)."""
+  if x.size == 0:  # An empty world: nothing to compute.
+    return x
   zero = jnp.zeros((), jnp.int32) * jnp.isnan(x.reshape(-1)[0]).astype(jnp.int32)
   return lax.dynamic_update_slice(jnp.zeros_like(x), x, (zero,) * x.ndim)
 
