@@ -165,7 +165,8 @@ def table(rows: list[dict]) -> list[str]:
           if r["mode"] == "1 device" and "error" not in r}
   for r in rows:
     if "error" in r:
-      out.append(f"| {r['scene']} | {r['mode']} | - | - | - | - | - | - | {r['error'][:160]} |")
+      error = " ".join(r["error"].split()).replace("|", "/")[:160]
+      out.append(f"| {r['scene']} | {r['mode']} | - | - | - | - | - | - | {error} |")
       continue
     ratio = r["world_steps_per_s"] / base[r["scene"]] if r["scene"] in base else float("nan")
     out.append(f"| {r['scene']} | {r['mode']} | {r['devices'] // r['processes']} x {r['processes']} "
