@@ -18,9 +18,9 @@ Across machines the same script runs once per host with `--process-id`, the same
 section "Scale-out".
 
 The mesh is `jax.make_mesh((devices,), ("worlds",))`, explicit axes by default
-(`--axis-type auto` for `AxisType.Auto`). Under explicit axes the batched step is
-wrapped in `jax.sharding.auto_axes` (drop it with `--plain`): jaxchain's step does not
-yet type-check under explicit sharding (see tests/test_sharding.py).
+(`--axis-type auto` for `AxisType.Auto`); the plain `jax.vmap` of `jc.rollout` runs
+under both (jaxchain runs each world's step with the mesh's axes Auto, see
+`jaxchain.sharding`).
 """
 
 from __future__ import annotations
@@ -48,8 +48,6 @@ def parse_args(argv=None) -> argparse.Namespace:
                       help="CPU devices each process exposes (JAX_NUM_CPU_DEVICES, default 1)")
   parser.add_argument("--axis-type", choices=("explicit", "auto"), default="explicit",
                       help="mesh axis type (default explicit, what jax.make_mesh builds)")
-  parser.add_argument("--plain", action="store_true",
-                      help="no jax.sharding.auto_axes around the step under explicit axes")
   parser.add_argument("--no-check", action="store_true",
                       help="skip the one-process reference run (timing only)")
   parser.add_argument("--repeats", type=int, default=1,
@@ -99,11 +97,10 @@ def config_overrides(scene: str) -> dict:
   return dict(converge=True) if scene == "demo" else {}
 
 
-def make_rollout(scene: str, num_bodies: int, config, steps: int, wrap):
-  """`jax.jit` of the batched rollout (final worlds only), the batched step wrapped by
-  `wrap`. The demo pushes its player at 20 along +x every step, as `jaxchain demo`
-  does (the same push in every world: a constant, not sharded). It is a NumPy array:
-  a `jax.Array` made under the explicit mesh would carry that mesh into `auto_axes`."""
+def make_rollout(scene: str, num_bodies: int, config, steps: int):
+  """`jax.jit` of the batched rollout (final worlds only). The demo pushes its player
+  at 20 along +x every step, as `jaxchain demo` does (the same push in every world: a
+  constant, not sharded)."""
   import jax
   import numpy as np
 
@@ -114,7 +111,7 @@ def make_rollout(scene: str, num_bodies: int, config, steps: int, wrap):
     push = np.zeros((num_bodies, 2), np.float32)
     push[jc.scenes.platformer().player, 0] = 20.0
   batched = jax.vmap(lambda w: jc.rollout(w, config, steps, push)[0])
-  return jax.jit(wrap(batched))
+  return jax.jit(batched)
 
 
 def agreed_config(local_worlds, overrides: dict):
@@ -188,13 +185,11 @@ def worker(args: argparse.Namespace) -> int:
   first, stop = local_rows(mesh, args.worlds)
   local = build_worlds(args.scene, first, stop)
   cfg = agreed_config(local, config_overrides(args.scene))
-  wrapped = args.axis_type == "explicit" and not args.plain
-  wrap = (lambda f: jax.sharding.auto_axes(f, out_sharding=P("worlds"))) if wrapped else (lambda f: f)
   setup_s = time.perf_counter() - t0
 
   with jax.set_mesh(mesh):
     worlds = global_batch(local, sharding, args.worlds)
-    run = make_rollout(args.scene, local.num_bodies, cfg, args.steps, wrap)
+    run = make_rollout(args.scene, local.num_bodies, cfg, args.steps)
     t0 = time.perf_counter()
     compiled = run.lower(worlds).compile()
     compile_s = time.perf_counter() - t0
@@ -210,7 +205,7 @@ def worker(args: argparse.Namespace) -> int:
            for k in ("pos", "vel", "status")}
   result = dict(process=me, processes=jax.process_count(), devices=jax.device_count(),
                 worlds=args.worlds, steps=args.steps, scene=args.scene, rows=[first, stop],
-                axis_type=args.axis_type, plain=args.plain, setup_s=setup_s, compile_s=compile_s,
+                axis_type=args.axis_type, setup_s=setup_s, compile_s=compile_s,
                 run_s=run_s, cpu_per_s=cpu_per_s, world_steps_per_s=args.worlds * args.steps / run_s,
                 depth=cfg.depth, links=cfg.links)
   ok = True
@@ -219,7 +214,7 @@ def worker(args: argparse.Namespace) -> int:
     device = jax.local_devices()[0]
     full = jax.device_put(build_worlds(args.scene, 0, args.worlds), device)
     t0 = time.perf_counter()
-    reference = make_rollout(args.scene, full.num_bodies, cfg, args.steps, lambda f: f)
+    reference = make_rollout(args.scene, full.num_bodies, cfg, args.steps)
     want = jax.block_until_ready(reference(full))
     result["reference_s"] = time.perf_counter() - t0
     bad = [k for k in got if not np.array_equal(got[k], np.asarray(getattr(want, k)))]
@@ -233,8 +228,7 @@ def worker(args: argparse.Namespace) -> int:
              "bit-identical to the one-process run" if ok else
              f"differs from the one-process run in {', '.join(result['mismatch'])}")
     print(f"{verdict}: {args.worlds} worlds ({args.scene}) x {args.steps} steps on "
-          f"{jax.process_count()} processes, {jax.device_count()} devices, {args.axis_type} axes"
-          f"{' (step in auto_axes)' if wrapped else ''}: "
+          f"{jax.process_count()} processes, {jax.device_count()} devices, {args.axis_type} axes: "
           f"{check}; setup {setup_s:.2f} s, compile {compile_s:.2f} s, run {run_s:.3f} s "
           f"({result['world_steps_per_s']:.4g} world-steps/s)", flush=True)
   return 0 if ok else 1
@@ -255,7 +249,7 @@ def child_argv(args: argparse.Namespace, process_id: int, coordinator: str) -> l
           "--devices-per-process", str(args.devices_per_process), "--axis-type", args.axis_type,
           "--repeats", str(args.repeats), "--timeout", str(args.timeout),
           "--process-id", str(process_id), "--coordinator", coordinator]
-  return argv + (["--plain"] if args.plain else []) + (["--no-check"] if args.no_check else [])
+  return argv + (["--no-check"] if args.no_check else [])
 
 
 def launch(args: argparse.Namespace, echo: bool = True) -> tuple[int, list[str]]:

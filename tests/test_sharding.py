@@ -5,12 +5,11 @@ process keeps its one device; here each result is compared with the same batch s
 unsharded on that one device, and must be bit-identical (`np.array_equal`).
 
 The mesh is the one `jax.make_mesh((2,), ("worlds",))` builds by default (explicit axes,
-`AxisType.Explicit`) and one with `AxisType.Auto`. Under explicit axes the step does not
-type-check today (issue 11: JAX's batching rules for `select_n`, for gathers whose
-operand is not batched and for loop carries that start unbatched reject the sharded
-batch axis; `Config` is not a JAX type, which `jax.vmap(..., in_axes=(0, None))` now
-checks). Those tests are `xfail(strict=True)`: when the fix lands they pass, fail as
-XPASS, and the marker goes.
+`AxisType.Explicit`) and one with `AxisType.Auto`. Under explicit axes JAX's batching
+rules for `select_n`, for gathers whose operand is not batched and for loop carries that
+start unbatched reject the sharded batch axis: the step runs its body in
+`sharding.in_auto_axes`, and `Config` is a pytree without leaves, so
+`jax.vmap(jc.step, in_axes=(0, None, 0))` accepts it.
 """
 
 import doctest
@@ -30,6 +29,7 @@ from jax import lax
 
 import jaxchain
 from jaxchain import sharding
+from jaxchain.gather import take
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SRC = pathlib.Path(jaxchain.__file__).resolve().parents[1]  # The jaxchain under test.
@@ -93,11 +93,6 @@ SHARDED = CASES + textwrap.dedent("""
     print("REPORT " + json.dumps(report))
 """)
 
-EXPLICIT_FAILS = pytest.mark.xfail(
-    strict=True, reason="issue 11: the step does not type-check under explicit sharding yet "
-    "(select_n / gather / loop-carry batching rules, Config not a JAX type); remove when fixed")
-
-
 def _env(devices: int) -> dict:
   path = os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
   return {**os.environ, "JAX_PLATFORMS": "cpu", "JAX_NUM_CPU_DEVICES": str(devices),
@@ -155,7 +150,7 @@ def _reference(name: str) -> dict:
 NAMES = ["rollout", "step_in_axes", "grid_rollout"]
 
 
-@pytest.mark.parametrize("kind", [pytest.param("explicit", marks=EXPLICIT_FAILS), "auto"])
+@pytest.mark.parametrize("kind", ["explicit", "auto"])
 @pytest.mark.parametrize("name", NAMES)
 def test_sharded_batch_matches_one_device(name, kind, sharded):
   assert jax.device_count() == 1  # This process keeps one device.
@@ -176,18 +171,10 @@ def _multiprocess(*flags: str) -> subprocess.CompletedProcess:
 
 
 def test_multiprocess_example_matches_one_process():
-  """Two processes on one runtime (explicit mesh, the step in `auto_axes`), 2 worlds each."""
+  """Two processes on one runtime (the explicit mesh `jax.make_mesh` builds), 2 worlds each."""
   done = _multiprocess()
   assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
   assert "[0] PASS" in done.stdout and "bit-identical" in done.stdout, done.stdout[-2000:]
-
-
-@EXPLICIT_FAILS
-def test_multiprocess_example_plain_explicit():
-  """The same without `auto_axes`: the plain batched step under explicit axes."""
-  done = _multiprocess("--plain")
-  assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
-  assert "[0] PASS" in done.stdout, done.stdout[-2000:]
 
 
 # --- jaxchain.sharding: the batched gather and the Auto-axes wrapper -------------------
@@ -197,7 +184,8 @@ HELPERS = textwrap.dedent("""
     import jax, jax.numpy as jnp, numpy as np
     from jax import lax
     from jax.sharding import AxisType, NamedSharding, PartitionSpec as P
-    from jaxchain.sharding import in_auto_axes, take
+    from jaxchain.gather import take
+    from jaxchain.sharding import in_auto_axes
     jax.config.update("jax_numpy_rank_promotion", "raise")
 
     def per_world(x, idx, table):
@@ -243,21 +231,23 @@ def test_helpers_under_both_meshes_without_collectives():
 
 @pytest.mark.parametrize("x_batched, idx_batched", [(True, True), (False, True), (True, False)])
 def test_take_is_the_flat_gather_under_vmap_and_grad(x_batched, idx_batched):
+  """`gather.take` on one device, as the step uses it: under vmap, grad and a loop."""
+  flat_take = lambda a, i: take(a.reshape(-1), i)
   rng = np.random.default_rng(1)
   x = jnp.asarray(rng.normal(size=(4, 3, 5)).astype(np.float32))
   idx = jnp.asarray(rng.integers(0, 15, (4, 2, 7)).astype(np.int32))
   xs, ids = (x if x_batched else x[0]), (idx if idx_batched else idx[0])
   axes = (0 if x_batched else None, 0 if idx_batched else None)
-  got = jax.jit(jax.vmap(sharding.take, in_axes=axes))(xs, ids)
+  got = jax.jit(jax.vmap(flat_take, in_axes=axes))(xs, ids)
   want = jax.vmap(lambda a, i: a.reshape(-1)[i], in_axes=axes)(xs, ids)
   assert np.array_equal(got, want)
   loss = lambda take: lambda a, i: jnp.sum(jnp.sin(take(a, i)) * jnp.arange(1.0, 8.0)[None])
   plain = lambda a, i: a.reshape(-1)[i]
-  g = jax.vmap(jax.grad(loss(sharding.take)), in_axes=axes)(xs, ids)
+  g = jax.vmap(jax.grad(loss(flat_take)), in_axes=axes)(xs, ids)
   g_want = jax.vmap(jax.grad(loss(plain)), in_axes=axes)(xs, ids)
   assert np.allclose(g, g_want, rtol=1e-6, atol=1e-6)
   # Inside a loop whose carry starts unbatched (the chain's hops do that).
-  hop = lambda a, i: lax.fori_loop(0, 2, lambda _, c: c + sharding.take(a + c[0, 0], i),
+  hop = lambda a, i: lax.fori_loop(0, 2, lambda _, c: c + flat_take(a + c[0, 0], i),
                                    jnp.zeros(i.shape, a.dtype))
   hop_want = lambda a, i: lax.fori_loop(0, 2, lambda _, c: c + plain(a + c[0, 0], i),
                                         jnp.zeros(i.shape, a.dtype))

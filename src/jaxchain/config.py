@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import jax
 import numpy as np
 
 from jaxchain import sizing
@@ -17,6 +18,7 @@ BROADPHASES = ("auto", "dense", "grid")
 _REALS = (int, float, np.integer, np.floating)
 
 
+@jax.tree_util.register_static
 @dataclasses.dataclass(frozen=True)
 class Config:
   """Everything that shapes the compiled step. Frozen and hashable: pass it as a

@@ -10,6 +10,12 @@ answer is the same value for value; only the formulation differs.
 Differentiable in both modes: the tangent of a gather is the same gather of the
 tangent, written as a plain `jnp` gather so that reverse mode can transpose it (a
 scatter-add); only the primal takes the flat path.
+
+Over several devices the batch is flattened per block of worlds that lives on one
+device (one block per device of the mesh, or of the runtime without one): a single
+flat gather across a sharded batch would make XLA all-gather the table on every hop,
+while one gather per block stays on its device (`tests/test_sharding.py` checks the
+compiled program holds no collective). On one device it is one block.
 """
 
 from __future__ import annotations
@@ -17,6 +23,12 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from jax.custom_batching import custom_vmap
+
+
+def _devices() -> int:
+  """How many devices a batch may be spread over: the context mesh's, else the runtime's."""
+  mesh = jax.sharding.get_abstract_mesh()
+  return mesh.size if not mesh.empty else jax.device_count()
 
 
 def take(table: jax.Array, idx: jax.Array) -> jax.Array:
@@ -43,12 +55,13 @@ def _take_jvp(primals, tangents):
   return _take(table, idx), tangents[0][idx]
 
 
-@custom_vmap
-def _take_flat(table, idx):
+def _gather(table, idx):
   return table.at[idx].get(mode="promise_in_bounds")
 
 
-@_take_flat.def_vmap
+_take_flat = custom_vmap(_gather)
+
+
 def _take_flat_batched(axis_size, in_batched, table, idx):
   table_batched, idx_batched = in_batched
   if not table_batched:  # One table for every world: index it directly.
@@ -56,9 +69,19 @@ def _take_flat_batched(axis_size, in_batched, table, idx):
   if not idx_batched:
     idx = jnp.broadcast_to(idx, (axis_size,) + idx.shape)
   size = table.shape[-1]
-  if axis_size * size >= 2**31:
-    raise ValueError(f"take: a batch of {axis_size} tables of {size} values is too large for "
+  blocks = _devices()
+  blocks = blocks if axis_size % blocks == 0 else 1
+  per_block = axis_size // blocks
+  if per_block * size >= 2**31:
+    raise ValueError(f"take: a batch of {per_block} tables of {size} values is too large for "
                      "int32 offsets; split the batch")
-  offsets = (size * jnp.arange(axis_size, dtype=idx.dtype)).reshape((-1,) + (1,) * (idx.ndim - 1))
-  flat = table.reshape(-1)
-  return _take_flat(flat, idx + offsets), True
+  offsets = (size * jnp.arange(per_block, dtype=idx.dtype)).reshape((-1,) + (1,) * (idx.ndim - 1))
+  if blocks == 1:
+    return _take_flat(table.reshape(-1), idx + offsets), True
+  flat = table.reshape(blocks, per_block * size)
+  ids = idx.reshape((blocks, per_block) + idx.shape[1:]) + offsets[None]
+  out = jax.vmap(_gather)(flat, ids)  # Batched over blocks: each stays on its device.
+  return out.reshape(idx.shape), True
+
+
+_take_flat.def_vmap(_take_flat_batched)

@@ -19,6 +19,7 @@ from jax import lax
 
 from jaxchain import broadphase, chain, geometry, status, velocity
 from jaxchain.config import Config
+from jaxchain.sharding import in_auto_axes
 from jaxchain.world import World
 
 
@@ -132,6 +133,10 @@ def resolve(world: World, config: Config) -> World:
     [-0.1, 0.9, 1.9]
   """
   _check_single(world, "resolve")
+  return in_auto_axes(lambda w: _resolve(w, config), world)
+
+
+def _resolve(world: World, config: Config) -> World:
   pos, _, code, crushed = _passes(world, world.pos, config)
   code = code | _finite_code(world, world.pos, pos) | _crushed_code(crushed)
   code = code | _switched_off(world, config, physics=False)
@@ -181,6 +186,12 @@ def _too_fast(world: World, vel: jax.Array, sub_dt: float) -> jax.Array:
 
 
 def _step(world: World, config: Config, accel: jax.Array | None) -> World:
+  """One step of one world, in `in_auto_axes` (a batch sharded over an explicit mesh
+  axis then runs as under an Auto one: see `jaxchain.sharding`)."""
+  return in_auto_axes(lambda w, a: _step_body(w, config, a), world, accel)
+
+
+def _step_body(world: World, config: Config, accel: jax.Array | None) -> World:
   sub_dt = config.dt / config.substeps
   # Library code uses dataclasses.replace: World.replace validates concrete values, and
   # under jax.disable_jit a NaN must become NON_FINITE, not an exception.
