@@ -1,0 +1,1040 @@
+"""Levels: Sokoban XSB and platformer ASCII maps, and Tiled JSON maps, as host arrays.
+
+A `Level` holds one NumPy array per body field (`pos`, `half`, `mass`, `vel`,
+`friction`, `one_way`, `sensor`, `category`, `mask`), tags naming bodies ("player",
+"box", "goal", Tiled names and classes, ...), the map's bounds and a gravity;
+`Level.world()` turns it into a `jaxchain.World`. Everything here runs on the host,
+before tracing: level loading never touches `jit`.
+
+Coordinates: one map cell (an ASCII character, or a Tiled tile) is one world unit
+(Tiled: unless the map property `unit` says how many pixels make one unit), and y
+points up: the bottom row of a map spans y in [0, 1], and the cell in row r (counted
+from the top, from 0) and column c of a map H rows high has centre
+(c + 0.5, H - 1 - r + 0.5).
+
+Runs of wall cells (or solid Tiled tiles) become few long rectangles: maximal
+horizontal runs of a row first, then runs spanning the same columns in consecutive
+rows stack into one rectangle. A floor is therefore one body (a box sliding along it
+meets no internal seam), and a level of hundreds of wall characters has tens of
+bodies. One-way platforms and kinematic platforms merge along rows only.
+
+Body order: by the top-left cell of each body in reading order (rows top to bottom,
+columns left to right); a character making several bodies (`+`, `*`) makes them in
+the order its legend entry lists them; Tiled layers come in file order (objects in
+the order of the layer's object array). Use `Level.tags`, not indices, to find
+bodies.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import dataclasses
+import gzip
+import importlib.resources
+import json
+import math
+import pathlib
+import types
+import xml.etree.ElementTree as ElementTree
+import zlib
+from collections.abc import Mapping
+
+import numpy as np
+
+from jaxchain.world import World
+
+# Collision categories (bits of `category` and `mask`; World: two bodies interact when
+# each one's category shares a bit with the other's mask).
+SOLID = 1  # walls, platforms, anything else by default (World's default category)
+PLAYER = 2
+BOX = 4
+SENSOR = 8  # goals, flags, hazards
+ALL = 0xFFFFFFFF  # a mask admitting every category (World's default mask)
+# Names accepted for category and mask bits in Tiled properties ("player|box").
+CATEGORIES = types.MappingProxyType(
+    {"solid": SOLID, "player": PLAYER, "box": BOX, "sensor": SENSOR, "all": ALL})
+
+SLAB = 0.25  # thickness of a one-way platform, in cells: a slab at the top of its cell
+FLIP_BITS = 0xF0000000  # Tiled GID flags: flipped horizontally, vertically, diagonally; hex 120
+GID_MASK = 0x0FFFFFFF  # the tile id bits of a Tiled GID
+_MERGES = ("none", "row", "rect")
+_U32 = 1 << 32
+
+
+@dataclasses.dataclass(frozen=True)
+class Tile:
+  """What one map character makes: a body per cell, or bodies merged over runs of cells.
+
+  Sizes and offsets are in cells. A body sits at its cell's centre plus `offset`;
+  merged runs span the union of their cells' rectangles.
+
+  Attributes:
+    tags: the tags its bodies get in `Level.tags` (a string is one tag).
+    mass: `inf` (default) for immovable; a finite mass makes a movable body.
+    half: half-extents `> 0` of the body in one cell.
+    offset: offset of the body's centre from the cell's centre.
+    vel: initial velocity, world units per second; an immovable body with a
+      velocity is a kinematic platform.
+    friction: Coulomb coefficient `>= 0`.
+    one_way: a jump-through platform (blocks only bodies coming down from above).
+    sensor: a trigger: never pushes, never pushed; `World.sensed` reports overlaps.
+    category: uint32 category bits.
+    mask: uint32 mask bits: the categories it interacts with (or, for a sensor,
+      the categories it senses).
+    merge: `"rect"` merges runs of cells into maximal rectangles (walls), `"row"`
+      merges horizontal runs only (platforms), `"none"` makes one body per cell.
+      Only immovable tiles merge.
+
+  Examples:
+    >>> from jaxchain import levels
+    >>> ice = levels.Tile(tags="ice", friction=0.0, merge="rect")
+    >>> ice.tags, ice.mass
+    (('ice',), inf)
+  """
+
+  tags: tuple[str, ...] = ()
+  mass: float = math.inf
+  half: tuple[float, float] = (0.5, 0.5)
+  offset: tuple[float, float] = (0.0, 0.0)
+  vel: tuple[float, float] = (0.0, 0.0)
+  friction: float = 0.0
+  one_way: bool = False
+  sensor: bool = False
+  category: int = SOLID
+  mask: int = ALL
+  merge: str = "none"
+
+  def __post_init__(self):
+    tags = (self.tags,) if isinstance(self.tags, str) else tuple(self.tags)
+    if not all(isinstance(t, str) and t for t in tags):
+      raise ValueError(f"Tile: tags must be non-empty strings, got {self.tags!r}")
+    set_ = lambda name, value: object.__setattr__(self, name, value)
+    set_("tags", tags)
+    set_("mass", float(self.mass))
+    set_("friction", float(self.friction))
+    for name in ("half", "offset", "vel"):
+      value = tuple(float(v) for v in getattr(self, name))
+      if len(value) != 2 or not all(math.isfinite(v) for v in value):
+        raise ValueError(f"Tile: {name} must be two finite numbers, got {getattr(self, name)!r}")
+      set_(name, value)
+    if not min(self.half) > 0:
+      raise ValueError(f"Tile: half-extents must be > 0, got {self.half}")
+    if not self.mass > 0:
+      raise ValueError(f"Tile: mass must be > 0 (inf for immovable), got {self.mass}")
+    if not (math.isfinite(self.friction) and self.friction >= 0):
+      raise ValueError(f"Tile: friction must be finite and >= 0, got {self.friction}")
+    for name in ("category", "mask"):
+      value = getattr(self, name)
+      if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < _U32:
+        raise ValueError(f"Tile: {name} must be an int in [0, 2**32), got {value!r}")
+      set_(name, int(value))
+    set_("one_way", bool(self.one_way))
+    set_("sensor", bool(self.sensor))
+    if self.merge not in _MERGES:
+      raise ValueError(f"Tile: merge must be one of {_MERGES}, got {self.merge!r}")
+    if self.merge != "none" and math.isfinite(self.mass):
+      raise ValueError(f"Tile: only immovable tiles (mass inf) merge; got mass {self.mass} "
+                       f"with merge={self.merge!r} (adjacent boxes are separate boxes)")
+
+
+WALL = Tile(tags="wall", merge="rect")
+PLAYER_TILE = Tile(tags="player", mass=1.0, half=(0.4, 0.4), category=PLAYER)
+BOX_TILE = Tile(tags="box", mass=1.0, half=(0.45, 0.45), category=BOX)
+HEAVY_TILE = Tile(tags=("box", "heavy"), mass=10.0, half=(0.45, 0.45), category=BOX)
+# A small goal: a default box (half 0.45) overlaps it exactly when the box's centre lies
+# in the goal's cell (0.45 + 0.05 = 0.5).
+GOAL_TILE = Tile(tags="goal", half=(0.05, 0.05), sensor=True, category=SENSOR, mask=BOX)
+PLATFORM_TILE = Tile(tags="platform", half=(0.5, SLAB / 2), offset=(0.0, 0.5 - SLAB / 2),
+                     one_way=True, merge="row")
+FLAG_TILE = Tile(tags="flag", sensor=True, category=SENSOR, mask=PLAYER)
+HAZARD_TILE = Tile(tags="hazard", sensor=True, category=SENSOR, mask=PLAYER, merge="row")
+
+
+def _kinematic(vel):
+  return Tile(tags="kinematic", vel=vel, merge="row")
+
+
+# The default character set. A value is a Tile, a tuple of Tiles (several bodies in one
+# cell), or None (floor: no body).
+LEGEND = types.MappingProxyType({
+    # Sokoban XSB.
+    "#": WALL, " ": None, "-": None, "_": None,
+    "@": PLAYER_TILE, "+": (PLAYER_TILE, GOAL_TILE),
+    "$": BOX_TILE, "*": (BOX_TILE, GOAL_TILE), ".": GOAL_TILE,
+    # XSB variants' letters.
+    "p": PLAYER_TILE, "P": (PLAYER_TILE, GOAL_TILE), "b": BOX_TILE, "B": (BOX_TILE, GOAL_TILE),
+    # Platformer.
+    "=": PLATFORM_TILE, "H": HEAVY_TILE,
+    ">": _kinematic((1.0, 0.0)), "<": _kinematic((-1.0, 0.0)),
+    "^": _kinematic((0.0, 1.0)), "v": _kinematic((0.0, -1.0)),
+    "F": FLAG_TILE, "X": HAZARD_TILE,
+})
+
+
+@dataclasses.dataclass(frozen=True, eq=False, repr=False)
+class Level:
+  """A level as host arrays, one entry per body (read-only NumPy arrays).
+
+  Attributes:
+    name: the level's name (file stem, or the `name` given to `parse_ascii`).
+    pos: `[n, 2]` float64 centres.
+    half: `[n, 2]` float64 half-extents.
+    mass: `[n]` float64 masses, `inf` for immovable bodies.
+    vel: `[n, 2]` float64 initial velocities.
+    friction: `[n]` float64 Coulomb coefficients.
+    one_way: `[n]` bool, jump-through platforms.
+    sensor: `[n]` bool, triggers.
+    category: `[n]` uint32 category bits.
+    mask: `[n]` uint32 mask bits.
+    tags: tag name -> sorted tuple of body indices.
+    bounds: `(xmin, ymin, xmax, ymax)` of the map (not of the bodies).
+    gravity: `(gx, gy)`, the gravity `world()` uses unless overridden.
+  """
+
+  name: str
+  pos: np.ndarray
+  half: np.ndarray
+  mass: np.ndarray
+  vel: np.ndarray
+  friction: np.ndarray
+  one_way: np.ndarray
+  sensor: np.ndarray
+  category: np.ndarray
+  mask: np.ndarray
+  tags: Mapping[str, tuple[int, ...]]
+  bounds: tuple[float, float, float, float]
+  gravity: tuple[float, float] = (0.0, -9.81)
+
+  def __post_init__(self):
+    n = len(self.pos)
+    fields = dict(pos=(np.float64, (n, 2)), half=(np.float64, (n, 2)), mass=(np.float64, (n,)),
+                  vel=(np.float64, (n, 2)), friction=(np.float64, (n,)), one_way=(bool, (n,)),
+                  sensor=(bool, (n,)), category=(np.uint32, (n,)), mask=(np.uint32, (n,)))
+    for name, (dtype, shape) in fields.items():
+      x = np.array(getattr(self, name), dtype=dtype).reshape(shape)
+      x.setflags(write=False)
+      object.__setattr__(self, name, x)
+    tags = {}
+    for tag, idx in self.tags.items():
+      idx = tuple(sorted(int(i) for i in idx))
+      if any(not 0 <= i < n for i in idx):
+        raise ValueError(f"Level: tag {tag!r} names bodies {idx} outside [0, {n})")
+      tags[tag] = idx
+    object.__setattr__(self, "tags", types.MappingProxyType(tags))
+    object.__setattr__(self, "bounds", tuple(float(b) for b in self.bounds))
+    object.__setattr__(self, "gravity", tuple(float(g) for g in self.gravity))
+
+  @property
+  def num_bodies(self) -> int:
+    """The number of bodies `n`."""
+    return len(self.pos)
+
+  def __len__(self) -> int:
+    return self.num_bodies
+
+  def __repr__(self) -> str:
+    tags = ", ".join(f"{t}: {len(i)}" for t, i in self.tags.items())
+    return f"Level({self.name!r}, {self.num_bodies} bodies, tags {{{tags}}})"
+
+  @property
+  def player(self) -> int:
+    """The index of the one body tagged "player".
+
+    Raises:
+      ValueError: if no body or several bodies carry the tag.
+    """
+    idx = self.tags.get("player", ())
+    if len(idx) != 1:
+      raise ValueError(f"level {self.name!r}: expected one body tagged 'player', found "
+                       f"{len(idx)} {list(idx)}")
+    return idx[0]
+
+  def indices(self, *tags: str) -> np.ndarray:
+    """The sorted indices (int array) of the bodies carrying any of `tags`.
+
+    Examples:
+      >>> from jaxchain import levels
+      >>> levels.parse_ascii("#@$*#").indices("box", "goal").tolist()
+      [2, 3, 4]
+    """
+    idx = sorted({i for t in tags for i in self.tags.get(t, ())})
+    return np.asarray(idx, dtype=np.int64)
+
+  def world(self, **overrides) -> World:
+    """The level as a `World` (`World.create` validates it).
+
+    Args:
+      **overrides: values replacing any keyword this passes to `World.create`:
+        `pos`, `half`, `mass`, `vel`, `friction`, `gravity`, `one_way`, `sensor`,
+        `category`, `mask` (and `active`, not passed by default).
+
+    Returns:
+      A `World` with one slot per body, in the level's body order.
+
+    Examples:
+      >>> from jaxchain import levels
+      >>> w = levels.parse_ascii("#@ $#").world(gravity=(0.0, 0.0))
+      >>> w.num_bodies, w.inv_mass.tolist()
+      (4, [0.0, 1.0, 1.0, 0.0])
+    """
+    args = dict(pos=self.pos, half=self.half, mass=self.mass, vel=self.vel,
+                friction=self.friction, gravity=self.gravity, one_way=self.one_way,
+                sensor=self.sensor, category=self.category, mask=self.mask)
+    args.update(overrides)
+    return World.create(args.pop("pos"), args.pop("half"), args.pop("mass"), **args)
+
+
+@dataclasses.dataclass
+class _Body:
+  """One body while a level is built (sorted by `key` at the end)."""
+
+  key: tuple
+  lo: tuple[float, float]
+  hi: tuple[float, float]
+  mass: float
+  vel: tuple[float, float]
+  friction: float
+  one_way: bool
+  sensor: bool
+  category: int
+  mask: int
+  tags: tuple[str, ...]
+
+
+def _level(name, bodies: list[_Body], bounds, gravity) -> Level:
+  bodies = sorted(bodies, key=lambda b: b.key)
+  n = len(bodies)
+  lo = np.array([b.lo for b in bodies], np.float64).reshape(n, 2)
+  hi = np.array([b.hi for b in bodies], np.float64).reshape(n, 2)
+  tags = {}
+  for i, b in enumerate(bodies):
+    for t in b.tags:
+      tags.setdefault(t, []).append(i)
+  col = lambda f, dtype: np.array([getattr(b, f) for b in bodies], dtype)
+  return Level(
+      name=name, pos=(lo + hi) / 2, half=(hi - lo) / 2, mass=col("mass", np.float64),
+      vel=np.array([b.vel for b in bodies], np.float64).reshape(n, 2),
+      friction=col("friction", np.float64), one_way=col("one_way", bool),
+      sensor=col("sensor", bool), category=col("category", np.uint32),
+      mask=col("mask", np.uint32), tags=tags, bounds=bounds, gravity=gravity)
+
+
+def rectangles(cells, vertical: bool = True) -> list[tuple[int, int, int, int]]:
+  """Covers the `True` cells of a grid with few rectangles, greedily.
+
+  Each row's maximal horizontal runs come first; with `vertical`, runs spanning the
+  same columns in consecutive rows stack into one rectangle. Every `True` cell lies
+  in exactly one rectangle, and every rectangle holds only `True` cells.
+
+  Args:
+    cells: `[rows, cols]` bool grid, row 0 first (at the top of a map).
+    vertical: stack identical runs of consecutive rows (`False`: runs only).
+
+  Returns:
+    Rectangles `(r0, c0, r1, c1)` (inclusive bounds), sorted by `(r0, c0)`.
+
+  Examples:
+    >>> from jaxchain import levels
+    >>> levels.rectangles([[1, 1, 1], [1, 0, 1], [1, 1, 1]])
+    [(0, 0, 0, 2), (1, 0, 1, 0), (1, 2, 1, 2), (2, 0, 2, 2)]
+    >>> levels.rectangles([[1, 1], [1, 1]]), levels.rectangles([[1, 1], [1, 1]], vertical=False)
+    ([(0, 0, 1, 1)], [(0, 0, 0, 1), (1, 0, 1, 1)])
+  """
+  cells = np.asarray(cells, bool)
+  if cells.ndim != 2:
+    raise ValueError(f"rectangles: expected a 2-D grid, got shape {cells.shape}")
+  done, open_ = [], {}
+  for r, row in enumerate(cells):
+    edges = np.diff(np.concatenate([[0], row.astype(np.int8), [0]]))
+    runs = zip(np.flatnonzero(edges == 1).tolist(), (np.flatnonzero(edges == -1) - 1).tolist())
+    grown = {}
+    for c0, c1 in runs:
+      rect = open_.pop((c0, c1)) if vertical and (c0, c1) in open_ else [r, c0, r, c1]
+      rect[2] = r
+      grown[(c0, c1)] = rect
+    done.extend(open_.values())
+    open_ = grown
+  done.extend(open_.values())
+  return sorted(tuple(rect) for rect in done)
+
+
+# ASCII maps.
+
+
+def _legend(legend) -> dict[str, tuple[Tile, ...]]:
+  table = dict(LEGEND)
+  if legend is not None:
+    if not isinstance(legend, Mapping):
+      raise ValueError(f"legend: expected a dict of character -> Tile, got {type(legend).__name__}")
+    table.update(legend)
+  out = {}
+  for ch, spec in table.items():
+    if not isinstance(ch, str) or len(ch) != 1 or ch in "\r\n":
+      raise ValueError(f"legend: keys must be single characters (not newlines), got {ch!r}")
+    spec = () if spec is None else (spec,) if isinstance(spec, Tile) else tuple(spec)
+    if not all(isinstance(t, Tile) for t in spec):
+      raise ValueError(f"legend: {ch!r} must map to a Tile, a tuple of Tiles or None, got {spec!r}")
+    out[ch] = spec
+  return out
+
+
+def parse_ascii(text: str, legend=None, *, name: str = "", gravity=(0.0, -9.81),
+                strict: bool = False, source: str | None = None) -> Level:
+  """Reads an ASCII map: Sokoban XSB as it is, plus platformer characters.
+
+  Characters (`LEGEND`; `legend` adds or overrides entries):
+
+  | char | body |
+  | --- | --- |
+  | `#` | wall (immovable, merged into rectangles), tag "wall" |
+  | space `-` `_` | floor (no body) |
+  | `@` `p` | player, mass 1, half 0.4, category `PLAYER`, tag "player" |
+  | `$` `b` | box, mass 1, half 0.45, category `BOX`, tag "box" |
+  | `.` | goal: a sensor of half 0.05 whose mask admits only `BOX`, tag "goal" |
+  | `*` `B` | box on a goal (two bodies: box, then goal) |
+  | `+` `P` | player on a goal (two bodies: player, then goal) |
+  | `=` | one-way platform: a slab `SLAB` (0.25) thick at the top of its cell, runs merged |
+  | `H` | heavy box, mass 10, tags "box" and "heavy" |
+  | `>` `<` `^` `v` | kinematic platform (immovable, 1 unit/s that way), runs merged, tag "kinematic" |
+  | `F` | flag: a full-cell sensor whose mask admits only `PLAYER`, tag "flag" |
+  | `X` | hazard: a full-cell sensor whose mask admits only `PLAYER`, runs merged, tag "hazard" |
+
+  Lines starting with `;` are comments (XSB titles), and blank lines before and
+  after the map are dropped; `\\r\\n` line ends are accepted.
+
+  Ragged maps: XSB files trim trailing spaces, so their lines differ in length. A
+  line shorter than the longest is padded with floor when its last non-floor
+  character is a wall (a character whose tile merges into rectangles, `#` by
+  default): in XSB every row ends at the level's outer wall, so padding restores
+  exactly what the trimming removed. A short line ending in anything else (a
+  truncated row, a blank line inside the map) is an error, since the missing
+  cells could lie inside the level. With `strict=True` every line must have the
+  length of the longest.
+
+  Args:
+    text: the map, rows from top to bottom.
+    legend: optional dict character -> `Tile`, tuple of `Tile`s, or `None` (floor),
+      added to `LEGEND` (overriding its entries).
+    name: the level's name.
+    gravity: the level's gravity (`Level.gravity`); `(0, 0)` suits a top-down
+      Sokoban level.
+    strict: require a rectangular map.
+    source: what errors call the text (default `name`, or "<ascii>").
+
+  Returns:
+    A `Level` whose bounds are `(0, 0, width, height)`.
+
+  Raises:
+    ValueError: naming the line and column of an unknown character or a tab, the
+      line of a ragged row, or an empty map.
+
+  Examples:
+    >>> from jaxchain import levels
+    >>> lv = levels.parse_ascii('''
+    ... #####
+    ... #@$.#
+    ... #####
+    ... ''')
+    >>> lv
+    Level('', 7 bodies, tags {wall: 4, player: 1, box: 1, goal: 1})
+    >>> lv.tags["wall"], lv.player, lv.pos[lv.player].tolist(), lv.half[0].tolist()
+    ((0, 1, 5, 6), 2, [1.5, 1.5], [2.5, 0.5])
+    >>> levels.parse_ascii("#@?#")
+    Traceback (most recent call last):
+    ...
+    ValueError: <ascii>: line 1, column 3: unknown character '?' ...
+  """
+  source = source or name or "<ascii>"
+  table = _legend(legend)
+  numbered = [(k + 1, line.rstrip("\r")) for k, line in enumerate(text.split("\n"))]
+  numbered = [(k, line) for k, line in numbered if not (line.startswith(";") and ";" not in table)]
+  while numbered and not numbered[0][1].strip():
+    numbered.pop(0)
+  while numbered and not numbered[-1][1].strip():
+    numbered.pop()
+  if not numbered:
+    raise ValueError(f"{source}: no map rows (the text is empty, blank or only ';' comments)")
+  grid = []
+  for k, line in numbered:
+    for c, ch in enumerate(line):
+      if ch not in table:
+        if ch == "\t":
+          raise ValueError(f"{source}: line {k}, column {c + 1}: tab character (a tab has no "
+                           f"width on a map: use spaces)")
+        raise ValueError(f"{source}: line {k}, column {c + 1}: unknown character {ch!r} (known: "
+                         f"{''.join(sorted(table))!r}; add it with legend=)")
+    grid.append([table[ch] for ch in line])
+  width = max(len(row) for row in grid)
+  longest = next(k for (k, _), row in zip(numbered, grid) if len(row) == width)
+  for (k, line), row in zip(numbered, grid):
+    if len(row) == width:
+      continue
+    if strict:
+      raise ValueError(f"{source}: line {k} is ragged: {len(row)} columns, but line {longest} "
+                       f"has {width} (strict=True needs a rectangular map)")
+    last = next((tiles for tiles in reversed(row) if tiles), ())
+    if not any(t.merge == "rect" for t in last):
+      raise ValueError(
+          f"{source}: line {k} is ragged: {len(row)} columns, but line {longest} has {width}, "
+          f"and it does not end in a wall, so the missing cells could be inside the level (end "
+          f"the row with a wall, or write the floor out with spaces or '-')")
+    row.extend([()] * (width - len(row)))
+  return _level(name, _ascii_bodies(grid), (0.0, 0.0, float(width), float(len(grid))), gravity)
+
+
+def _ascii_bodies(grid: list[list[tuple[Tile, ...]]]) -> list[_Body]:
+  """Bodies of a rectangular grid of tile tuples (row 0 at the top)."""
+  height = len(grid)
+  bodies = []
+
+  def body(tile: Tile, r0, c0, r1, c1):
+    slot = grid[r0][c0].index(tile)
+    lo = (c0 + 0.5 + tile.offset[0] - tile.half[0],
+          height - 1 - r1 + 0.5 + tile.offset[1] - tile.half[1])
+    hi = (c1 + 0.5 + tile.offset[0] + tile.half[0],
+          height - 1 - r0 + 0.5 + tile.offset[1] + tile.half[1])
+    bodies.append(_Body((r0, c0, slot), lo, hi, tile.mass, tile.vel, tile.friction, tile.one_way,
+                        tile.sensor, tile.category, tile.mask, tile.tags))
+
+  merged = {}
+  for r, row in enumerate(grid):
+    for c, tiles in enumerate(row):
+      for tile in tiles:
+        if tile.merge == "none":
+          body(tile, r, c, r, c)
+        else:
+          merged.setdefault(tile, []).append((r, c))
+  for tile, cells in merged.items():
+    mask = np.zeros((height, len(grid[0])), bool)
+    mask[tuple(np.array(cells).T)] = True
+    for rect in rectangles(mask, vertical=tile.merge == "rect"):
+      body(tile, *rect)
+  return bodies
+
+
+# Tiled JSON maps.
+
+
+class _Where:
+  """Where in a Tiled map an error is (for messages)."""
+
+  def __init__(self, source: str, layer: str | None = None, obj: str | None = None):
+    self.source, self.layer, self.obj = source, layer, obj
+
+  def __str__(self):
+    parts = [self.source] + [p for p in (self.layer, self.obj) if p]
+    return ", ".join(parts)
+
+  def error(self, message: str) -> ValueError:
+    return ValueError(f"{self}: {message}")
+
+
+def _number(value, what: str = "") -> float:
+  if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    prefix = f"{what}: " if what else ""
+    raise ValueError(f"{prefix}expected a finite number (an int or float property), got {value!r}")
+  return float(value)
+
+
+def _prop_bool(value):
+  if not isinstance(value, bool):
+    raise ValueError(f"expected a bool property (true or false), got {value!r}")
+  return value
+
+
+def _prop_mass(value):
+  if isinstance(value, str) and value.strip().lower() in ("inf", "infinity"):
+    return math.inf
+  if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+    raise ValueError(f"expected a number > 0, or 'inf' for immovable, got {value!r}")
+  return float(value)
+
+
+def _prop_friction(value):
+  value = _number(value)
+  if value < 0:
+    raise ValueError(f"expected a number >= 0, got {value!r}")
+  return value
+
+
+def _prop_bits(value):
+  if isinstance(value, str):
+    bits = 0
+    for part in value.replace(",", "|").split("|"):
+      part = part.strip()
+      if part.lower() in CATEGORIES:
+        bits |= CATEGORIES[part.lower()]
+        continue
+      try:
+        bits |= _prop_bits(int(part, 0))
+      except ValueError:
+        raise ValueError(f"expected an int in [0, 2**32) or category names joined by '|' "
+                         f"({', '.join(CATEGORIES)}), got {value!r}") from None
+    return bits
+  if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < _U32:
+    raise ValueError(f"expected an int in [0, 2**32) or category names joined by '|' "
+                     f"({', '.join(CATEGORIES)}), got {value!r}")
+  return value
+
+
+def _prop_vector(value):
+  parts = value.split(",") if isinstance(value, str) else []
+  try:
+    vec = tuple(float(p) for p in parts)
+  except ValueError:
+    vec = ()
+  if len(vec) != 2 or not all(math.isfinite(v) for v in vec):
+    raise ValueError(f"expected a string 'x,y' of two numbers, got {value!r}")
+  return vec
+
+
+def _prop_component(value):
+  return _number(value)
+
+
+def _prop_tags(value):
+  if not isinstance(value, str):
+    raise ValueError(f"expected a string of comma-separated tags, got {value!r}")
+  return tuple(t.strip() for t in value.split(",") if t.strip())
+
+
+def _prop_unit(value):
+  value = _number(value)
+  if not value > 0:
+    raise ValueError(f"expected pixels per world unit > 0, got {value!r}")
+  return value
+
+
+# The properties this module reads (others are kept by Tiled for the game and ignored).
+_PROPERTIES = {
+    "solid": _prop_bool, "one_way": _prop_bool, "sensor": _prop_bool,
+    "mass": _prop_mass, "friction": _prop_friction, "category": _prop_bits, "mask": _prop_bits,
+    "velocity": _prop_vector, "vx": _prop_component, "vy": _prop_component, "tag": _prop_tags,
+}
+_MAP_PROPERTIES = {"unit": _prop_unit, "gravity": _prop_vector}
+
+
+def _properties(raw, where: _Where, known=_PROPERTIES) -> dict:
+  """The recognised properties of a Tiled element, checked (`raw`: its `properties`)."""
+  if raw is None:
+    return {}
+  if isinstance(raw, Mapping):  # The format before Tiled 1.2: {name: value}.
+    items = list(raw.items())
+  elif isinstance(raw, list):
+    try:
+      items = [(p["name"], p.get("value")) for p in raw]
+    except (TypeError, KeyError):
+      raise where.error("properties must be objects with 'name' and 'value'") from None
+  else:
+    raise where.error(f"properties must be an array, got {type(raw).__name__}")
+  out = {}
+  for key, value in items:
+    if key not in known:
+      continue
+    try:
+      out[key] = known[key](value)
+    except ValueError as e:
+      raise where.error(f"property {key!r}: {e}") from None
+  return out
+
+
+def _int_field(data: Mapping, key: str, where: _Where, default=None, minimum=1) -> int:
+  value = data.get(key, default)
+  if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+    raise where.error(f"{key!r} must be an int >= {minimum}, got {value!r}")
+  return value
+
+
+def _gids(layer: Mapping, width: int, height: int, where: _Where) -> np.ndarray:
+  """The `[height, width]` tile ids of a tile layer, flip bits masked off."""
+  if "chunks" in layer:
+    raise where.error("chunked tile data (an infinite map) is not supported; make the map finite")
+  lw, lh = layer.get("width", width), layer.get("height", height)
+  if (lw, lh) != (width, height):
+    raise where.error(f"layer size {lw}x{lh} differs from the map's {width}x{height}")
+  data = layer.get("data")
+  encoding = layer.get("encoding", "csv")
+  compression = layer.get("compression", "") or ""
+  if encoding == "csv":
+    if compression:
+      raise where.error(f"compression {compression!r} needs encoding 'base64', not 'csv'")
+    if isinstance(data, str):  # Some exporters write the CSV text itself.
+      data = [p for p in data.replace("\n", ",").split(",") if p.strip()]
+      try:
+        data = [int(p) for p in data]
+      except ValueError:
+        raise where.error("CSV tile data holds a value that is not an integer") from None
+    if not isinstance(data, list) or not all(
+        isinstance(g, int) and not isinstance(g, bool) for g in data):
+      raise where.error("tile data must be an array of integer GIDs (encoding 'csv')")
+    if any(not 0 <= g < _U32 for g in data):
+      raise where.error("tile data holds a GID outside [0, 2**32)")
+    gids = np.asarray(data, np.uint64).astype(np.uint32)
+  elif encoding == "base64":
+    if not isinstance(data, str):
+      raise where.error("encoding 'base64' needs the tile data as a string")
+    try:
+      raw = base64.b64decode(data, validate=True)
+    except (binascii.Error, ValueError):
+      raise where.error("tile data is not valid base64") from None
+    if compression == "zstd":
+      raise where.error("zstd compression is not supported (the Python standard library has "
+                        "no zstd); save the layer with zlib or gzip compression, or as CSV")
+    try:
+      if compression == "zlib":
+        raw = zlib.decompress(raw)
+      elif compression == "gzip":
+        raw = gzip.decompress(raw)
+      elif compression:
+        raise where.error(f"unknown compression {compression!r} (expected zlib, gzip or none)")
+    except (zlib.error, OSError, EOFError) as e:
+      raise where.error(f"tile data does not decompress as {compression} ({e})") from None
+    if len(raw) % 4:
+      raise where.error(f"decoded tile data has {len(raw)} bytes, not a multiple of 4")
+    gids = np.frombuffer(raw, "<u4").astype(np.uint32)
+  else:
+    raise where.error(f"unknown encoding {encoding!r} (expected csv or base64)")
+  if gids.size != width * height:
+    raise where.error(f"tile data has {gids.size} tiles, expected {width}x{height} = "
+                      f"{width * height}")
+  return (gids & np.uint32(GID_MASK)).reshape(height, width)
+
+
+def _read_tileset(ts: Mapping, base, where: _Where) -> tuple[list, int]:
+  """A tileset's tiles `[(local id, properties element, class)]` and its tile count."""
+  source = ts.get("source")
+  if source is None:
+    tiles = ts.get("tiles") or []
+    return [(t.get("id"), t.get("properties"), t.get("class") or t.get("type") or "")
+            for t in tiles], ts.get("tilecount", 0)
+  if base is None:
+    raise where.error(f"external tileset {source!r} cannot be found without the map's directory")
+  path = base.joinpath(source)
+  try:
+    text = path.read_text(encoding="utf-8")
+  except OSError as e:
+    raise where.error(f"external tileset {source!r} cannot be read ({e}); embed the tileset "
+                      f"in the map or ship the file beside it") from None
+  if source.endswith(".tsx"):
+    try:
+      root = ElementTree.fromstring(text)
+    except ElementTree.ParseError as e:
+      raise where.error(f"external tileset {source!r} is not valid XML ({e})") from None
+    tiles = []
+    for t in root.iter("tile"):
+      props = [dict(name=p.get("name"), value=_xml_value(p)) for p in t.iter("property")]
+      tiles.append((int(t.get("id", -1)), props, t.get("class") or t.get("type") or ""))
+    return tiles, int(root.get("tilecount", 0))
+  try:
+    data = json.loads(text)
+  except json.JSONDecodeError as e:
+    raise where.error(f"external tileset {source!r} is not valid JSON ({e})") from None
+  return _read_tileset(data, None, where)
+
+
+def _xml_value(prop):
+  """A TMX/TSX `<property>` value, typed like the JSON format types it."""
+  kind, value = prop.get("type", "string"), prop.get("value", prop.text or "")
+  try:
+    if kind == "bool":
+      return {"true": True, "false": False}[value]
+    if kind == "int":
+      return int(value)
+    if kind == "float":
+      return float(value)
+  except (KeyError, ValueError):
+    pass
+  return value
+
+
+def _tile_properties(tilesets, base, where: _Where) -> dict[int, tuple[dict, tuple[str, ...]]]:
+  """GID -> (checked properties, tags from the tile's class) of the tiles that have any."""
+  out = {}
+  if not isinstance(tilesets, list):
+    raise where.error("'tilesets' must be an array")
+  for k, ts in enumerate(tilesets):
+    label = ts.get("name") or ts.get("source") or k
+    ts_where = _Where(where.source, f"tileset {label!r}")
+    first = _int_field(ts, "firstgid", ts_where)
+    tiles, _ = _read_tileset(ts, base, ts_where)
+    for local, props, cls in tiles:
+      if not isinstance(local, int) or local < 0:
+        raise ts_where.error(f"a tile has an invalid id {local!r}")
+      tile_where = _Where(where.source, f"tileset {label!r}", f"tile {local}")
+      out[first + local] = (_properties(props, tile_where), (cls,) if cls else ())
+  return out
+
+
+@dataclasses.dataclass(frozen=True)
+class _Units:
+  """Pixels to world units: x / ux, and y flipped to point up."""
+
+  ux: float
+  uy: float
+  height_px: float
+
+  def box(self, x0, y0, x1, y1):
+    """World `(lo, hi)` of the pixel box x in [x0, x1], y (down) in [y0, y1]."""
+    return (x0 / self.ux, (self.height_px - y1) / self.uy), (x1 / self.ux, (self.height_px - y0) / self.uy)
+
+
+def _spec(props: dict, tags: tuple[str, ...]) -> tuple:
+  """The hashable body spec of resolved properties (what makes tiles merge)."""
+  sensor = props.get("sensor", False)
+  return (props.get("one_way", False), sensor, props.get("friction", 0.0),
+          props.get("category", SENSOR if sensor else SOLID), props.get("mask", ALL),
+          tuple(dict.fromkeys(tags + props.get("tag", ()))))
+
+
+def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
+               source: str | None = None) -> Level:
+  """Reads a Tiled JSON map (already parsed with `json.load`); see `load`.
+
+  Args:
+    data: the map's JSON object.
+    name: the level's name.
+    base: directory (a `pathlib.Path` or `importlib.resources` traversable) that
+      external tilesets are relative to.
+    gravity: the level's gravity; default the map property `gravity` ("gx,gy"),
+      else `(0, -9.81)`.
+    source: what errors call the map (default `name`, or "<tiled>").
+
+  Examples:
+    >>> from jaxchain import levels
+    >>> m = {"orientation": "orthogonal", "width": 3, "height": 2, "tilewidth": 16,
+    ...      "tileheight": 16, "tilesets": [], "layers": [
+    ...          {"type": "tilelayer", "name": "ground", "data": [0, 0, 0, 1, 1, 1]}]}
+    >>> lv = levels.load_tiled(m)
+    >>> lv.pos.tolist(), lv.half.tolist(), lv.tags["ground"]
+    ([[1.5, 0.5]], [[1.5, 0.5]], (0,))
+  """
+  where = _Where(source or name or "<tiled>")
+  if not isinstance(data, Mapping):
+    raise where.error(f"a Tiled map is a JSON object, got {type(data).__name__}")
+  orientation = data.get("orientation", "orthogonal")
+  if orientation != "orthogonal":
+    raise where.error(f"orientation {orientation!r} is not supported (only orthogonal maps)")
+  if data.get("infinite", False):
+    raise where.error("infinite maps are not supported (their tile data is chunked); make the "
+                      "map finite (map property Infinite off) and save it again")
+  width, height = _int_field(data, "width", where), _int_field(data, "height", where)
+  tw, th = _int_field(data, "tilewidth", where), _int_field(data, "tileheight", where)
+  map_props = _properties(data.get("properties"), _Where(where.source, "map properties"),
+                          known=_MAP_PROPERTIES)
+  unit = map_props.get("unit")
+  units = _Units(unit or tw, unit or th, height * th)
+  if gravity is None:
+    gravity = map_props.get("gravity", (0.0, -9.81))
+  tiles = _tile_properties(data.get("tilesets", []), base, where)
+  bodies = []
+  layers = data.get("layers", [])
+  if not isinstance(layers, list):
+    raise where.error("'layers' must be an array")
+  _walk(layers, {}, (0.0, 0.0), "", where, (width, height, tw, th), units, tiles, bodies)
+  bounds = (0.0, 0.0, width * tw / units.ux, height * th / units.uy)
+  return _level(name, bodies, bounds, gravity)
+
+
+def _walk(layers, inherited, offset, prefix, where, grid, units, tiles, bodies):
+  """Adds the bodies of `layers` (and of groups within them) to `bodies`."""
+  for layer in layers:
+    if not isinstance(layer, Mapping):
+      raise where.error("a layer must be a JSON object")
+    lname = prefix + str(layer.get("name", ""))
+    lwhere = _Where(where.source, f"layer {lname!r}")
+    props = {**inherited, **_properties(layer.get("properties"), lwhere)}
+    if not props.get("solid", True):
+      continue
+    try:
+      off = (offset[0] + _number(layer.get("offsetx", 0.0), "offsetx"),
+             offset[1] + _number(layer.get("offsety", 0.0), "offsety"))
+    except ValueError as e:
+      raise lwhere.error(str(e)) from None
+    kind = layer.get("type")
+    if kind == "group":
+      _walk(layer.get("layers", []), props, off, lname + "/", where, grid, units, tiles, bodies)
+    elif kind == "tilelayer":
+      _tile_layer(layer, props, off, lname, lwhere, grid, units, tiles, bodies)
+    elif kind == "objectgroup":
+      _object_layer(layer, props, off, lname, lwhere, units, tiles, bodies)
+    elif kind != "imagelayer":
+      raise lwhere.error(f"unknown layer type {kind!r}")
+
+
+def _tile_layer(layer, props, offset, lname, where, grid, units, tiles, bodies):
+  width, height, tw, th = grid
+  for key in ("mass", "velocity", "vx", "vy"):
+    if key in props:
+      raise where.error(f"property {key!r}: tile layers are immovable and static (give mass and "
+                        f"velocity to objects)")
+  gids = _gids(layer, width, height, where)
+  specs = {}  # spec -> bool grid of its cells
+  layer_tags = (lname,) if lname else ()
+  for gid in np.unique(gids[gids > 0]).tolist():
+    tile_props, tile_tags = tiles.get(gid, ({}, ()))
+    resolved = {**props, **{k: v for k, v in tile_props.items() if k not in ("mass", "velocity", "vx", "vy")}}
+    if not resolved.get("solid", True):
+      continue
+    spec = _spec(resolved, layer_tags + tile_tags)
+    specs.setdefault(spec, np.zeros((height, width), bool))
+    specs[spec] |= gids == gid
+  order = len(bodies)
+  for spec, cells in specs.items():
+    one_way, sensor, friction, category, mask, tags = spec
+    for r0, c0, r1, c1 in rectangles(cells, vertical=not one_way):
+      x0, x1 = c0 * tw + offset[0], (c1 + 1) * tw + offset[0]
+      y0, y1 = r0 * th + offset[1], (r1 + 1) * th + offset[1]
+      if one_way:
+        y1 = y0 + SLAB * th
+      lo, hi = units.box(x0, y0, x1, y1)
+      bodies.append(_Body((order, r0, c0), lo, hi, math.inf, (0.0, 0.0), friction, one_way,
+                          sensor, category, mask, tags))
+
+
+def _object_layer(layer, props, offset, lname, where, units, tiles, bodies):
+  objects = layer.get("objects", [])
+  if not isinstance(objects, list):
+    raise where.error("'objects' must be an array")
+  for k, obj in enumerate(objects):
+    oname = obj.get("name", "") if isinstance(obj, Mapping) else ""
+    owhere = _Where(where.source, where.layer,
+                    f"object {obj.get('id', k) if isinstance(obj, Mapping) else k}"
+                    + (f" {oname!r}" if oname else ""))
+    if not isinstance(obj, Mapping):
+      raise owhere.error("an object must be a JSON object")
+    for shape in ("ellipse", "point", "polygon", "polyline", "text"):
+      if shape in obj and obj[shape] is not False:
+        raise owhere.error(f"{shape} objects are not supported (only rectangles and tile objects "
+                           f"become bodies); move it to a layer with property solid=false")
+    if "template" in obj:
+      raise owhere.error("template objects are not supported; detach the template in Tiled")
+    try:
+      x, y = _number(obj.get("x", 0.0), "x"), _number(obj.get("y", 0.0), "y")
+      w, h = _number(obj.get("width", 0.0), "width"), _number(obj.get("height", 0.0), "height")
+      rotation = _number(obj.get("rotation", 0.0), "rotation")
+    except ValueError as e:
+      raise owhere.error(str(e)) from None
+    if rotation % 360:
+      raise owhere.error(f"rotation {rotation} is not supported (boxes are axis-aligned)")
+    if not (w > 0 and h > 0):
+      raise owhere.error(f"size {w}x{h}: a body needs a width and height > 0")
+    tags = tuple(t for t in (lname, oname, obj.get("class") or obj.get("type")) if t)
+    resolved = dict(props)
+    if "gid" in obj:  # A tile object: (x, y) is its bottom-left corner.
+      gid = _int_field(obj, "gid", owhere, minimum=0) & GID_MASK
+      tile_props, tile_tags = tiles.get(gid, ({}, ()))
+      resolved.update(tile_props)
+      tags += tile_tags
+      y -= h
+    resolved.update(_properties(obj.get("properties"), owhere))
+    if not resolved.get("solid", True):
+      continue
+    vx, vy = resolved.get("velocity", (0.0, 0.0))
+    vel = (resolved.get("vx", vx), resolved.get("vy", vy))
+    one_way, sensor, friction, category, mask, tags = _spec(resolved, tags)
+    lo, hi = units.box(x + offset[0], y + offset[1], x + w + offset[0], y + h + offset[1])
+    bodies.append(_Body((len(bodies),), lo, hi, resolved.get("mass", math.inf), vel, friction,
+                        one_way, sensor, category, mask, tags))
+
+
+# Files and shipped levels.
+
+_SUFFIXES = {".txt": "ascii", ".xsb": "xsb", ".tmj": "tiled", ".json": "tiled"}
+
+
+def _shipped():
+  return importlib.resources.files("jaxchain").joinpath("data", "levels")
+
+
+def names() -> list[str]:
+  """The names of the levels shipped with jaxchain (for `load`).
+
+  Examples:
+    >>> from jaxchain import levels
+    >>> "sokoban1" in levels.names()
+    True
+  """
+  return sorted(p.name.rsplit(".", 1)[0] for p in _shipped().iterdir()
+                if "." in p.name and "." + p.name.rsplit(".", 1)[1] in _SUFFIXES)
+
+
+def load(path, legend=None, *, strict: bool = False, gravity=None) -> Level:
+  """Loads a level file by extension, or a shipped level by name (`names()`).
+
+  Formats:
+    - `.xsb`: Sokoban XSB text (`parse_ascii`), gravity `(0, 0)` by default
+      (Sokoban is seen from above).
+    - `.txt`: ASCII map (`parse_ascii`), gravity `(0, -9.81)` by default.
+    - `.tmj`, `.json`: Tiled JSON map: orthogonal and finite. Tile layers (CSV, or
+      base64 uncompressed, zlib or gzip; flip bits of the GIDs are masked off)
+      become immovable bodies, their tiles merged into rectangles; object layers'
+      rectangles and tile objects become bodies. Properties (on layers, group
+      layers, tiles of a tileset and objects; later ones override) say what:
+      `solid` (bool, default true; false skips a layer, tile or object), `one_way`
+      (bool; a slab `SLAB` of a tile thick at its top on tile layers), `sensor`
+      (bool), `friction` (float >= 0), `category` and `mask` (int in [0, 2**32), or
+      names like "player|box" from `CATEGORIES`; default `SOLID` (`SENSOR` for
+      sensors) and all bits), `mass` (objects only: float > 0 or "inf"; absent means
+      immovable), `velocity` ("vx,vy" string) or `vx`/`vy` (floats; objects only,
+      world units per second, y up), `tag` (comma-separated extra tags). Tags: the
+      layer's name (group layers as "group/layer"), the object's name and
+      class (or type), and the tile's class. Units: one tile is one world unit
+      along each axis unless the map property `unit` (float) gives the pixels per
+      unit; y points up. Map properties `gravity` ("gx,gy") and `name` are read too.
+
+  Args:
+    path: a file path, or the name of a shipped level.
+    legend: extra characters for ASCII maps (see `parse_ascii`).
+    strict: ASCII maps must be rectangular (see `parse_ascii`).
+    gravity: the level's gravity, overriding the format's default.
+
+  Returns:
+    The `Level`, named after the file's stem (or the map property `name`).
+
+  Raises:
+    ValueError: for an unsupported extension or malformed input, naming the file
+      and the line and column, or the layer and object, and the property.
+    FileNotFoundError: for a path that does not exist and is not a shipped level.
+
+  Examples:
+    >>> from jaxchain import levels
+    >>> lv = levels.load("sokoban1")
+    >>> lv.gravity, len(lv.tags["box"]) == len(lv.tags["goal"])
+    ((0.0, 0.0), True)
+  """
+  file = pathlib.Path(path)
+  if not file.exists() and isinstance(path, str) and not file.suffix and "/" not in path:
+    shipped = {p.name.rsplit(".", 1)[0]: p for p in _shipped().iterdir()}
+    if path not in shipped:
+      raise FileNotFoundError(f"no level file {path!r}, and no shipped level of that name "
+                              f"(shipped: {', '.join(names())})")
+    file = shipped[path]
+  suffix = "." + file.name.rsplit(".", 1)[-1].lower() if "." in file.name else ""
+  if suffix not in _SUFFIXES:
+    hint = " (TMX is Tiled's XML format: export the map as JSON, .tmj)" if suffix == ".tmx" else ""
+    raise ValueError(f"{file.name}: unsupported level file extension {suffix!r}{hint}; expected "
+                     f"one of {', '.join(_SUFFIXES)}")
+  try:
+    text = file.read_text(encoding="utf-8")
+  except FileNotFoundError:
+    raise FileNotFoundError(f"no level file {str(path)!r} (shipped levels: "
+                            f"{', '.join(names())})") from None
+  stem = file.name.rsplit(".", 1)[0]
+  kind = _SUFFIXES[suffix]
+  if kind == "tiled":
+    try:
+      data = json.loads(text)
+    except json.JSONDecodeError as e:
+      raise ValueError(f"{file.name}: not valid JSON ({e})") from None
+    return load_tiled(data, name=stem, base=_parent(file), gravity=gravity, source=file.name)
+  if gravity is None:
+    gravity = (0.0, 0.0) if kind == "xsb" else (0.0, -9.81)
+  return parse_ascii(text, legend, name=stem, gravity=gravity, strict=strict, source=file.name)
+
+
+def _parent(file):
+  """The directory of a path or of an `importlib.resources` traversable."""
+  if isinstance(file, pathlib.Path):
+    return file.parent
+  return _shipped()
