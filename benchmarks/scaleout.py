@@ -10,8 +10,7 @@ setting runs in its own subprocess, all in one run:
 - `1 device, 1 core`: the same pinned to one core (`taskset -c 0`), which shows how
   much of the machine one device already uses;
 - `2 devices`: `JAX_NUM_CPU_DEVICES=2` in one process, the batch sharded over the
-  mesh `jax.make_mesh((2,), ("worlds",))` (explicit axes, the step in
-  `jax.sharding.auto_axes`);
+  mesh `jax.make_mesh((2,), ("worlds",))` (explicit axes);
 - `2 devices, 1 core`: the same pinned to one core;
 - `2 processes`: two processes of one device each on one JAX runtime (gloo
   collectives over localhost), each building its half (`examples/multiprocess.py`).
@@ -82,11 +81,9 @@ def worker(scene: str, batch: int, steps: int, repeats: int) -> dict:
   with jax.set_mesh(mesh) if devices > 1 else contextlib.nullcontext():
     if devices == 1:
       worlds = jax.device_put(worlds, jax.devices()[0])
-      run = mp.make_rollout(scene, worlds.num_bodies, cfg, steps, lambda f: f)
     else:
       worlds = jax.device_put(worlds, NamedSharding(mesh, P("worlds")))
-      run = mp.make_rollout(scene, worlds.num_bodies, cfg, steps,
-                            lambda f: jax.sharding.auto_axes(f, out_sharding=P("worlds")))
+    run = mp.make_rollout(scene, worlds.num_bodies, cfg, steps)
     t0 = time.perf_counter()
     compiled = run.lower(worlds).compile()
     compile_s = time.perf_counter() - t0
