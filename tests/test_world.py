@@ -79,7 +79,9 @@ def test_pad_and_stack_errors():
 def test_world_is_a_pytree():
   w = make()
   leaves = jax.tree.leaves(w)
-  assert len(leaves) == 9  # pos, vel, half, inv_mass, active, friction, gravity, crushed, status
+  # pos, vel, half, inv_mass, active, friction, gravity, one_way, sensor, category, mask,
+  # crushed, touching, sensed, status
+  assert len(leaves) == 15
   doubled = jax.tree.map(lambda x: x * 2 if x.dtype != bool else x, w)
   np.testing.assert_array_equal(doubled.pos, 2 * np.asarray(w.pos))
 

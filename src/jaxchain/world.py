@@ -9,6 +9,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+# Collision layers of `World.create`'s defaults: every body in layer 1, colliding
+# with every layer.
+DEFAULT_CATEGORY = 1
+ALL_LAYERS = 0xFFFFFFFF
+
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
@@ -32,8 +37,24 @@ class World:
       is on.
     gravity: `[2]` float array, this world's gravity acceleration on movable
       bodies (`[b, 2]` for a batch). Read only when `Config.gravity` is on.
+    one_way: `[n]` bool array, jump-through bodies: a one-way body blocks only
+      bodies that come down onto it from above (README, "One-way platforms"). Read
+      only when `Config.one_way` is on.
+    sensor: `[n]` bool array, triggers: a sensor never pushes and is never pushed;
+      `sensed` says whether something overlaps it. Read only when `Config.sensors`
+      is on.
+    category: `[n]` uint32 array, the collision layers a body is in (bits).
+    mask: `[n]` uint32 array, the layers a body collides with: bodies i and j
+      interact only when `category[i] & mask[j]` and `category[j] & mask[i]` are
+      both nonzero. Read only when `Config.layers` is on.
     crushed: `[n]` bool array, output flag written by every step (`False` on
       creation).
+    touching: `[n, 4]` bool array, output written by every step: `touching[i, d]`
+      says movable body i was linked (touching within the skin, or overlapping) to
+      a body lying in direction d from it (`geometry.DIRECTIONS`: +x, -x, +y, -y)
+      in some pass of the step. `jc.grounded(world)` is `touching[..., 3]`.
+    sensed: `[n]` bool array, output written by every step: sensor i overlaps, at
+      the end of the step, an active body its mask admits.
     status: `[]` int32, failure bits (`jaxchain.status`) ORed in by every step and
       kept until the user clears them; `jc.check(world)` explains them.
   """
@@ -45,7 +66,13 @@ class World:
   active: jax.Array
   friction: jax.Array
   gravity: jax.Array
+  one_way: jax.Array
+  sensor: jax.Array
+  category: jax.Array
+  mask: jax.Array
   crushed: jax.Array
+  touching: jax.Array
+  sensed: jax.Array
   status: jax.Array
 
   @property
@@ -60,7 +87,8 @@ class World:
 
   @classmethod
   def create(cls, pos, half, mass, vel=None, active=None, *, friction=0.0,
-             gravity=(0.0, -9.81)) -> World:
+             gravity=(0.0, -9.81), one_way=False, sensor=False, category=DEFAULT_CATEGORY,
+             mask=ALL_LAYERS) -> World:
     """Builds a world from host data, checking every field.
 
     Args:
@@ -72,16 +100,23 @@ class World:
       friction: `[n]` per-body Coulomb coefficients `>= 0`, or a scalar for all
         bodies (default 0: frictionless).
       gravity: `[2]` gravity acceleration of this world (default `(0, -9.81)`).
+      one_way: `[n]` bool, or one bool for all bodies: jump-through bodies.
+      sensor: `[n]` bool, or one bool for all bodies: triggers.
+      category: `[n]` integers in `[0, 2**32)`, or one for all: collision layer
+        bits (default `1`).
+      mask: `[n]` integers in `[0, 2**32)`, or one for all: the layers each body
+        collides with (default all bits, `0xFFFFFFFF`).
 
     Returns:
-      A float32 `World` (float64 if x64 is enabled), with `crushed` all `False`
-      and `status` 0.
+      A float32 `World` (float64 if x64 is enabled), with the outputs `crushed`,
+      `touching`, `sensed` all `False` and `status` 0.
 
     Raises:
       ValueError: naming the field and the problem (and the bodies), for NaN/inf
         positions or velocities, half-extents `<= 0`, mass `<= 0` or NaN, negative,
-        NaN or inf friction, non-finite gravity, or arrays of the wrong rank, shape
-        or length; and, checked again after the cast to the stored dtype, for values
+        NaN or inf friction, non-finite gravity, `one_way` or `sensor` that is not
+        bool, `category` or `mask` that is not an integer in `[0, 2**32)`, or arrays
+        of the wrong rank, shape or length; and, checked again after the cast to the stored dtype, for values
         float32 cannot hold: coordinates, velocities, friction or gravity that
         overflow to inf, half-extents that become 0 (subnormal) or inf, and finite
         masses that are subnormal or whose inverse is (a mass above about 8.5e37
@@ -126,6 +161,10 @@ class World:
     for name, x in (("pos", pos), ("vel", vel), ("half", half), ("friction", friction),
                     ("gravity", gravity)):
       _check_values(name, x)
+    flags = {name: _per_body_bool(name, x, n) for name, x in (("one_way", one_way),
+                                                             ("sensor", sensor))}
+    layers = {name: _per_body_bits(name, x, n) for name, x in (("category", category),
+                                                              ("mask", mask))}
     if np.any(np.isnan(mass)):
       raise ValueError(f"mass: NaN mass for bodies {_where(np.isnan(mass))}")
     if np.any(mass <= 0):
@@ -144,7 +183,9 @@ class World:
     f = lambda name: jnp.asarray(cast[name])
     return cls(pos=f("pos"), vel=f("vel"), half=f("half"), inv_mass=f("inv_mass"),
                active=jnp.asarray(active), friction=f("friction"), gravity=f("gravity"),
-               crushed=jnp.zeros(n, bool), status=jnp.zeros((), jnp.int32))
+               **{k: jnp.asarray(v) for k, v in {**flags, **layers}.items()},
+               crushed=jnp.zeros(n, bool), touching=jnp.zeros((n, 4), bool),
+               sensed=jnp.zeros(n, bool), status=jnp.zeros((), jnp.int32))
 
   def replace(self, **changes) -> World:
     """A copy with some fields changed, checked when the new values are concrete.
@@ -240,9 +281,41 @@ def stack(worlds: Sequence[World], capacity: int | None = None) -> World:
 
 
 # Per-body fields and their padding: immovable, inactive, frictionless unit boxes at
-# the origin, never crushed. (`gravity` and `status` are per world.)
+# the origin in the default layers, never crushed, touching or sensing. (`gravity`
+# and `status` are per world.)
 _PAD_FILL = dict(pos=0.0, vel=0.0, half=1.0, inv_mass=0.0, active=False, friction=0.0,
-                 crushed=False)
+                 one_way=False, sensor=False, category=DEFAULT_CATEGORY, mask=ALL_LAYERS,
+                 crushed=False, touching=False, sensed=False)
+
+
+def _per_body_bool(name: str, x, n: int) -> np.ndarray:
+  """A `[n]` bool array from one bool or `n` of them (NumPy or JAX bools, Python bools)."""
+  a = np.asarray(x)
+  if a.dtype != bool:
+    raise ValueError(f"{name}: expected bools (one, or one per body), got {a.dtype} {a.shape}; "
+                     f"a mask is needed (e.g. x != 0)")
+  if a.ndim == 0:
+    a = np.broadcast_to(a, (n,))
+  if a.shape != (n,):
+    raise ValueError(f"{name}: expected shape ({n},) or a scalar to match pos, got {a.shape}")
+  return np.array(a)
+
+
+def _per_body_bits(name: str, x, n: int) -> np.ndarray:
+  """A `[n]` uint32 array of layer bits from one integer or `n` of them."""
+  a = np.asarray(x)
+  if a.dtype == bool or a.dtype.kind not in "iu":
+    raise ValueError(f"{name}: expected integers (layer bits, one or one per body), got "
+                     f"{a.dtype} {a.shape}")
+  bad = (a.astype(object) < 0) | (a.astype(object) > ALL_LAYERS)
+  if np.any(bad):
+    which = f"got {a.item()}" if a.ndim == 0 else f"bodies {_where(bad)} are not"
+    raise ValueError(f"{name}: layer bits must lie in [0, 2**32) (uint32); {which}")
+  if a.ndim == 0:
+    a = np.broadcast_to(a, (n,))
+  if a.shape != (n,):
+    raise ValueError(f"{name}: expected shape ({n},) or a scalar to match pos, got {a.shape}")
+  return a.astype(np.uint32)
 
 
 def _as_float(name: str, x) -> np.ndarray:
@@ -255,7 +328,8 @@ def _as_float(name: str, x) -> np.ndarray:
 # Fields with one entry per body; `*_VEC` ones are `[..., n, 2]`, the rest `[..., n]`.
 # `gravity` (`[..., 2]`) and `status` (`[...]`) are per world.
 _PER_BODY_VEC = ("pos", "vel", "half")
-_PER_BODY = ("inv_mass", "active", "friction", "crushed")
+_PER_BODY = ("inv_mass", "active", "friction", "one_way", "sensor", "category", "mask",
+             "crushed", "sensed")
 
 
 def _bodies(name: str, bad: np.ndarray) -> str:
@@ -341,7 +415,9 @@ def _checked(name: str, value, old):
       host = np.asarray(value)
     except (TypeError, ValueError) as e:
       raise ValueError(f"{name}: cannot convert to an array ({e})") from None
-    kind_ok = {"b": "b", "f": "fiu", "i": "iu"}.get(old_dtype.kind, old_dtype.kind)
+    kind_ok = {"b": "b", "f": "fiu", "i": "iu", "u": "iu"}.get(old_dtype.kind, old_dtype.kind)
+    if old_dtype.kind == "u" and host.dtype.kind in "iu":
+      host = _per_body_bits(name, host, host.shape[-1] if host.ndim else 1).reshape(host.shape)
     if host.dtype.kind in kind_ok:
       with np.errstate(over="ignore"):
         host = host.astype(old_dtype)
