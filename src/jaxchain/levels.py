@@ -290,8 +290,8 @@ class _Body:
   """One body while a level is built (sorted by `key` at the end)."""
 
   key: tuple
-  lo: tuple[float, float]
-  hi: tuple[float, float]
+  pos: tuple[float, float]
+  half: tuple[float, float]
   mass: float
   vel: tuple[float, float]
   friction: float
@@ -305,16 +305,15 @@ class _Body:
 def _level(name, bodies: list[_Body], bounds, gravity) -> Level:
   bodies = sorted(bodies, key=lambda b: b.key)
   n = len(bodies)
-  lo = np.array([b.lo for b in bodies], np.float64).reshape(n, 2)
-  hi = np.array([b.hi for b in bodies], np.float64).reshape(n, 2)
   tags = {}
   for i, b in enumerate(bodies):
     for t in b.tags:
       tags.setdefault(t, []).append(i)
   col = lambda f, dtype: np.array([getattr(b, f) for b in bodies], dtype)
   return Level(
-      name=name, pos=(lo + hi) / 2, half=(hi - lo) / 2, mass=col("mass", np.float64),
-      vel=np.array([b.vel for b in bodies], np.float64).reshape(n, 2),
+      name=name, pos=np.array([b.pos for b in bodies], np.float64).reshape(n, 2),
+      half=np.array([b.half for b in bodies], np.float64).reshape(n, 2),
+      mass=col("mass", np.float64), vel=np.array([b.vel for b in bodies], np.float64).reshape(n, 2),
       friction=col("friction", np.float64), one_way=col("one_way", bool),
       sensor=col("sensor", bool), category=col("category", np.uint32),
       mask=col("mask", np.uint32), tags=tags, bounds=bounds, gravity=gravity)
@@ -404,13 +403,13 @@ def parse_ascii(text: str, legend=None, *, name: str = "", gravity=(0.0, -9.81),
   after the map are dropped; `\\r\\n` line ends are accepted.
 
   Ragged maps: XSB files trim trailing spaces, so their lines differ in length. A
-  line shorter than the longest is padded with floor when its last non-floor
-  character is a wall (a character whose tile merges into rectangles, `#` by
-  default): in XSB every row ends at the level's outer wall, so padding restores
-  exactly what the trimming removed. A short line ending in anything else (a
-  truncated row, a blank line inside the map) is an error, since the missing
-  cells could lie inside the level. With `strict=True` every line must have the
-  length of the longest.
+  line shorter than the longest is padded with floor when it ends in a wall (a
+  character whose tile merges into rectangles, `#` by default): in XSB every row
+  ends at the level's outer wall once the spaces after it are trimmed, so padding
+  restores exactly what the trimming removed. A short line ending in anything else
+  (a truncated row, trailing floor, a blank line inside the map) is an error,
+  since the missing cells could lie inside the level. With `strict=True` every
+  line must have the length of the longest.
 
   Args:
     text: the map, rows from top to bottom.
@@ -473,8 +472,7 @@ def parse_ascii(text: str, legend=None, *, name: str = "", gravity=(0.0, -9.81),
     if strict:
       raise ValueError(f"{source}: line {k} is ragged: {len(row)} columns, but line {longest} "
                        f"has {width} (strict=True needs a rectangular map)")
-    last = next((tiles for tiles in reversed(row) if tiles), ())
-    if not any(t.merge == "rect" for t in last):
+    if not (row and any(t.merge == "rect" for t in row[-1])):
       raise ValueError(
           f"{source}: line {k} is ragged: {len(row)} columns, but line {longest} has {width}, "
           f"and it does not end in a wall, so the missing cells could be inside the level (end "
@@ -489,12 +487,11 @@ def _ascii_bodies(grid: list[list[tuple[Tile, ...]]]) -> list[_Body]:
   bodies = []
 
   def body(tile: Tile, r0, c0, r1, c1):
+    # The union of the run's cell rectangles (exactly the tile's own for one cell).
     slot = grid[r0][c0].index(tile)
-    lo = (c0 + 0.5 + tile.offset[0] - tile.half[0],
-          height - 1 - r1 + 0.5 + tile.offset[1] - tile.half[1])
-    hi = (c1 + 0.5 + tile.offset[0] + tile.half[0],
-          height - 1 - r0 + 0.5 + tile.offset[1] + tile.half[1])
-    bodies.append(_Body((r0, c0, slot), lo, hi, tile.mass, tile.vel, tile.friction, tile.one_way,
+    pos = ((c0 + c1 + 1) / 2 + tile.offset[0], height - (r0 + r1 + 1) / 2 + tile.offset[1])
+    half = ((c1 - c0) / 2 + tile.half[0], (r1 - r0) / 2 + tile.half[1])
+    bodies.append(_Body((r0, c0, slot), pos, half, tile.mass, tile.vel, tile.friction, tile.one_way,
                         tile.sensor, tile.category, tile.mask, tile.tags))
 
   merged = {}
@@ -775,8 +772,9 @@ class _Units:
   height_px: float
 
   def box(self, x0, y0, x1, y1):
-    """World `(lo, hi)` of the pixel box x in [x0, x1], y (down) in [y0, y1]."""
-    return (x0 / self.ux, (self.height_px - y1) / self.uy), (x1 / self.ux, (self.height_px - y0) / self.uy)
+    """World `(pos, half)` of the pixel box x in [x0, x1], y (down) in [y0, y1]."""
+    pos = ((x0 + x1) / 2 / self.ux, (self.height_px - (y0 + y1) / 2) / self.uy)
+    return pos, ((x1 - x0) / 2 / self.ux, (y1 - y0) / 2 / self.uy)
 
 
 def _spec(props: dict, tags: tuple[str, ...]) -> tuple:
@@ -887,8 +885,8 @@ def _tile_layer(layer, props, offset, lname, where, grid, units, tiles, bodies):
       y0, y1 = r0 * th + offset[1], (r1 + 1) * th + offset[1]
       if one_way:
         y1 = y0 + SLAB * th
-      lo, hi = units.box(x0, y0, x1, y1)
-      bodies.append(_Body((order, r0, c0), lo, hi, math.inf, (0.0, 0.0), friction, one_way,
+      pos, half = units.box(x0, y0, x1, y1)
+      bodies.append(_Body((order, r0, c0), pos, half, math.inf, (0.0, 0.0), friction, one_way,
                           sensor, category, mask, tags))
 
 
@@ -916,9 +914,9 @@ def _object_layer(layer, props, offset, lname, where, units, tiles, bodies):
     except ValueError as e:
       raise owhere.error(str(e)) from None
     if rotation % 360:
-      raise owhere.error(f"rotation {rotation} is not supported (boxes are axis-aligned)")
+      raise owhere.error(f"rotation {rotation:g} is not supported (boxes are axis-aligned)")
     if not (w > 0 and h > 0):
-      raise owhere.error(f"size {w}x{h}: a body needs a width and height > 0")
+      raise owhere.error(f"size {w:g}x{h:g}: a body needs a width and height > 0")
     tags = tuple(t for t in (lname, oname, obj.get("class") or obj.get("type")) if t)
     resolved = dict(props)
     if "gid" in obj:  # A tile object: (x, y) is its bottom-left corner.
@@ -933,8 +931,8 @@ def _object_layer(layer, props, offset, lname, where, units, tiles, bodies):
     vx, vy = resolved.get("velocity", (0.0, 0.0))
     vel = (resolved.get("vx", vx), resolved.get("vy", vy))
     one_way, sensor, friction, category, mask, tags = _spec(resolved, tags)
-    lo, hi = units.box(x + offset[0], y + offset[1], x + w + offset[0], y + h + offset[1])
-    bodies.append(_Body((len(bodies),), lo, hi, resolved.get("mass", math.inf), vel, friction,
+    pos, half = units.box(x + offset[0], y + offset[1], x + w + offset[0], y + h + offset[1])
+    bodies.append(_Body((len(bodies),), pos, half, resolved.get("mass", math.inf), vel, friction,
                         one_way, sensor, category, mask, tags))
 
 
