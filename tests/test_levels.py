@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+import jaxchain as jc
 from jaxchain import levels
 
 DATA = pathlib.Path(__file__).parent / "data" / "levels"
@@ -360,6 +361,20 @@ def _obj(props=None, **fields):
   return obj
 
 
+def test_tiled_group_properties_reach_objects_and_tile_layers_take_no_motion():
+  inner = _map([_obj()], layer={"data": [0, 0, 1, 1]})["layers"]
+  group = {"type": "group", "name": "g", "layers": inner, "properties": [
+      {"name": "mass", "value": 4}, {"name": "friction", "value": 0.5}]}
+  lv = levels.load_tiled(_map(layers=[group]))
+  assert dict(lv.tags) == {"g/ground": (0,), "g/things": (1,), "crate": (1,)}
+  assert lv.mass.tolist() == [INF, 4] and lv.friction.tolist() == [0.5, 0.5]
+  # A tile's mass applies to tile objects only; in a tile layer the tile stays immovable.
+  tiles = [{"firstgid": 1, "name": "t", "tiles": [{"id": 0, "properties": [
+      {"name": "mass", "value": 2}, {"name": "velocity", "value": "1,0"}]}]}]
+  lv = levels.load_tiled(_map([_obj(gid=1, y=32)], layer={}, tilesets=tiles))
+  assert lv.mass.tolist() == [INF, 2] and lv.vel.tolist() == [[0, 0], [1, 0]]
+
+
 def test_tiled_old_style_property_dicts_and_csv_strings():
   lv = levels.load_tiled(_map([{**_obj(), "properties": {"mass": 2, "sensor": False}}],
                               layer={"data": "0,0,\n1,1"}))
@@ -564,6 +579,17 @@ def test_world_overrides():
   assert np.asarray(w.inv_mass)[lv.player] == 0.5
   with pytest.raises(TypeError):
     lv.world(colour="red")
+
+
+def test_a_loaded_level_settles_on_its_merged_floor():
+  lv = levels.load("platformer1")
+  w = lv.world()
+  final, _ = jc.rollout(w, jc.Config.for_world(w), 60)
+  idx = lv.indices("player", "box")
+  # Player (half 0.4) and boxes (half 0.45) end resting on the floor's top, y = 1.
+  np.testing.assert_allclose(np.asarray(final.pos)[idx], [[3.5, 1.4], [7.5, 1.45], [10.5, 1.45]],
+                             atol=2e-3)
+  assert int(final.status) == 0
 
 
 def test_doctests():

@@ -610,6 +610,8 @@ _PROPERTIES = {
     "velocity": _prop_vector, "vx": _prop_component, "vy": _prop_component, "tag": _prop_tags,
 }
 _MAP_PROPERTIES = {"unit": _prop_unit, "gravity": _prop_vector}
+# What only objects use (tiles of a tile layer are immovable and static).
+_MOTION = ("mass", "velocity", "vx", "vy")
 
 
 def _properties(raw, where: _Where, known=_PROPERTIES) -> dict:
@@ -698,13 +700,15 @@ def _gids(layer: Mapping, width: int, height: int, where: _Where) -> np.ndarray:
   return (gids & np.uint32(GID_MASK)).reshape(height, width)
 
 
-def _read_tileset(ts: Mapping, base, where: _Where) -> tuple[list, int]:
-  """A tileset's tiles `[(local id, properties element, class)]` and its tile count."""
+def _read_tileset(ts: Mapping, base, where: _Where) -> list:
+  """A tileset's tiles that have data: `[(local id, properties element, class)]`."""
   source = ts.get("source")
   if source is None:
     tiles = ts.get("tiles") or []
+    if not all(isinstance(t, Mapping) for t in tiles):
+      raise where.error("'tiles' must be an array of objects")
     return [(t.get("id"), t.get("properties"), t.get("class") or t.get("type") or "")
-            for t in tiles], ts.get("tilecount", 0)
+            for t in tiles]
   if base is None:
     raise where.error(f"external tileset {source!r} cannot be found without the map's directory")
   path = base.joinpath(source)
@@ -721,8 +725,10 @@ def _read_tileset(ts: Mapping, base, where: _Where) -> tuple[list, int]:
     tiles = []
     for t in root.iter("tile"):
       props = [dict(name=p.get("name"), value=_xml_value(p)) for p in t.iter("property")]
-      tiles.append((int(t.get("id", -1)), props, t.get("class") or t.get("type") or ""))
-    return tiles, int(root.get("tilecount", 0))
+      local = t.get("id", "")
+      tiles.append((int(local) if local.isdigit() else local, props,
+                    t.get("class") or t.get("type") or ""))
+    return tiles
   try:
     data = json.loads(text)
   except json.JSONDecodeError as e:
@@ -751,10 +757,12 @@ def _tile_properties(tilesets, base, where: _Where) -> dict[int, tuple[dict, tup
   if not isinstance(tilesets, list):
     raise where.error("'tilesets' must be an array")
   for k, ts in enumerate(tilesets):
+    if not isinstance(ts, Mapping):
+      raise where.error(f"tileset {k} must be a JSON object")
     label = ts.get("name") or ts.get("source") or k
     ts_where = _Where(where.source, f"tileset {label!r}")
     first = _int_field(ts, "firstgid", ts_where)
-    tiles, _ = _read_tileset(ts, base, ts_where)
+    tiles = _read_tileset(ts, base, ts_where)
     for local, props, cls in tiles:
       if not isinstance(local, int) or local < 0:
         raise ts_where.error(f"a tile has an invalid id {local!r}")
@@ -841,7 +849,8 @@ def _walk(layers, inherited, offset, prefix, where, grid, units, tiles, bodies):
       raise where.error("a layer must be a JSON object")
     lname = prefix + str(layer.get("name", ""))
     lwhere = _Where(where.source, f"layer {lname!r}")
-    props = {**inherited, **_properties(layer.get("properties"), lwhere)}
+    own = _properties(layer.get("properties"), lwhere)
+    props = {**inherited, **own}
     if not props.get("solid", True):
       continue
     try:
@@ -853,6 +862,11 @@ def _walk(layers, inherited, offset, prefix, where, grid, units, tiles, bodies):
     if kind == "group":
       _walk(layer.get("layers", []), props, off, lname + "/", where, grid, units, tiles, bodies)
     elif kind == "tilelayer":
+      for key in _MOTION:
+        if key in own:
+          raise lwhere.error(f"property {key!r}: tile layers are immovable and static (give mass "
+                             f"and velocity to objects)")
+      props = {k: v for k, v in props.items() if k not in _MOTION}
       _tile_layer(layer, props, off, lname, lwhere, grid, units, tiles, bodies)
     elif kind == "objectgroup":
       _object_layer(layer, props, off, lname, lwhere, units, tiles, bodies)
@@ -862,16 +876,12 @@ def _walk(layers, inherited, offset, prefix, where, grid, units, tiles, bodies):
 
 def _tile_layer(layer, props, offset, lname, where, grid, units, tiles, bodies):
   width, height, tw, th = grid
-  for key in ("mass", "velocity", "vx", "vy"):
-    if key in props:
-      raise where.error(f"property {key!r}: tile layers are immovable and static (give mass and "
-                        f"velocity to objects)")
   gids = _gids(layer, width, height, where)
   specs = {}  # spec -> bool grid of its cells
   layer_tags = (lname,) if lname else ()
   for gid in np.unique(gids[gids > 0]).tolist():
     tile_props, tile_tags = tiles.get(gid, ({}, ()))
-    resolved = {**props, **{k: v for k, v in tile_props.items() if k not in ("mass", "velocity", "vx", "vy")}}
+    resolved = {**props, **{k: v for k, v in tile_props.items() if k not in _MOTION}}
     if not resolved.get("solid", True):
       continue
     spec = _spec(resolved, layer_tags + tile_tags)
@@ -975,7 +985,9 @@ def load(path, legend=None, *, strict: bool = False, gravity=None) -> Level:
       names like "player|box" from `CATEGORIES`; default `SOLID` (`SENSOR` for
       sensors) and all bits), `mass` (objects only: float > 0 or "inf"; absent means
       immovable), `velocity` ("vx,vy" string) or `vx`/`vy` (floats; objects only,
-      world units per second, y up), `tag` (comma-separated extra tags). Tags: the
+      world units per second, y up), `tag` (comma-separated extra tags). A tile's
+      mass and velocity apply to tile objects; tile layers are immovable and static
+      (mass or velocity on a tile layer itself is an error). Tags: the
       layer's name (group layers as "group/layer"), the object's name and
       class (or type), and the tile's class. Units: one tile is one world unit
       along each axis unless the map property `unit` (float) gives the pixels per
