@@ -1,15 +1,16 @@
 """jaxchain: batched, differentiable 2D box collisions with collision chaining."""
 
-from jaxchain import broadphase, metrics, reference, scenes, sizing, status
+from jaxchain import broadphase, levels, metrics, reference, scenes, sizing, status
 from jaxchain.broadphase import GridSpec
 from jaxchain.config import Config
+from jaxchain.flags import blocked, grounded
 from jaxchain.geometry import Candidates
 from jaxchain.status import check
 from jaxchain.stepping import Trajectory, make_step, resolve, rollout, step
 from jaxchain.world import World, stack
 
 __all__ = [
-    "Candidates", "Config", "GridSpec", "Trajectory", "World", "broadphase", "check", "make_step",
-    "metrics", "reference", "resolve", "rollout", "scenes", "sizing", "stack", "status", "step",
+    "Candidates", "Config", "GridSpec", "Trajectory", "World", "blocked", "broadphase", "check",
+    "grounded", "levels", "make_step", "metrics", "reference", "resolve", "rollout", "scenes", "sizing", "stack", "status", "step",
 ]
 __version__ = "0.1.0"

@@ -53,6 +53,15 @@ class Config:
       and the extra links (the last by candidate order) are ignored, in the
       resolution and in friction, which reads the same table. `for_world` sizes it
       from the scene.
+    one_way: whether one-way (jump-through) bodies are traced (`World.one_way`);
+      `False` treats every body as solid.
+    layers: whether collision layers are traced (`World.category`, `World.mask`);
+      `False` lets every pair interact.
+    sensors: whether sensors are traced (`World.sensor`, output `World.sensed`);
+      `False` treats sensors as solid bodies and leaves `sensed` False.
+      `for_world` switches each of these three off when no world of the batch uses
+      it, and a world that uses one its config leaves out sets
+      `status.SWITCHED_OFF`.
     converge: forward-only mode: every hop loop stops as soon as a hop changes
       nothing (a `while_loop`; under `vmap`, once every world in the batch has), with
       the same answer as `depth` hops, bit for bit. Faster when chains are shorter
@@ -71,6 +80,9 @@ class Config:
   immovable: bool = True
   grid: GridSpec | None = None
   links: int | None = None
+  one_way: bool = True
+  layers: bool = True
+  sensors: bool = True
   converge: bool = False
 
   def __post_init__(self):
@@ -104,7 +116,7 @@ class Config:
     if not isinstance(self.broadphase, str) or self.broadphase not in BROADPHASES:
       raise ValueError(f"Config.broadphase: expected one of {BROADPHASES}, got {self.broadphase!r}")
     object.__setattr__(self, "broadphase", str(self.broadphase))
-    for name in ("immovable", "converge"):
+    for name in ("immovable", "one_way", "layers", "sensors", "converge"):
       v = getattr(self, name)
       if not isinstance(v, (bool, np.bool_)):
         raise ValueError(f"Config.{name}: expected a bool, got {v!r}")

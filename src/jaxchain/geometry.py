@@ -106,7 +106,7 @@ def along_axis(o: jax.Array, use_y: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 
 def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
-             start: jax.Array | None = None) -> Contacts:
+             start: jax.Array | None = None, one_way: OneWay | None = None) -> Contacts:
   """Contacts of every candidate pair.
 
   The contact axis of a pair that overlapped at `start` (or of every pair, without
@@ -122,12 +122,16 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
   the larger index lies in the positive direction. That tie rule is the only place
   body order matters.
 
+  With `one_way` (see `OneWay`), a pair with a one-way member is a contact only when
+  the one-way rule admits it, and then along y.
+
   Args:
     pos: `[n, 2]` centres.
     half: `[n, 2]` half-extents.
     cand: candidate table with `[n, m]` entries.
     skin: gap below which separated bodies still count as linked.
     start: optional `[n, 2]` centres at the start of the step.
+    one_way: optional one-way bodies (`OneWay`).
   """
   n = pos.shape[0]
   # One [n, m] array per coordinate: a trailing axis of 2 would leave XLA:CPU's
@@ -144,11 +148,19 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
     separated = (ox0 <= 0) | (oy0 <= 0)
     use_y = jnp.where(separated, _impact_axis(ox0, oy0, ox, oy, use_y, skin), use_y)
     dx, dy = jnp.where(separated, dx0, dx), jnp.where(separated, dy0, dy)
+  admitted, upward = None, None
+  if one_way is not None:
+    admitted, vertical, upward = _one_way_rule(pos if start is None else start, half, cand,
+                                               one_way, hy)
+    use_y = use_y | vertical
   o_axis, o_other = jnp.where(use_y, oy, ox), jnp.where(use_y, ox, oy)
   d_axis = jnp.where(use_y, dy, dx)
   self_idx = jnp.arange(n, dtype=jnp.int32)[:, None]
   positive = (d_axis > 0) | ((d_axis == 0) & (cand.partner_index() > self_idx))
   link = cand.mask & (o_other > 0) & (o_axis >= -skin)
+  if one_way is not None:
+    positive = jnp.where(vertical, upward, positive)
+    link = link & admitted
   direction = 2 * use_y.astype(jnp.int32) + (~positive).astype(jnp.int32)
   # Materialised once: every direction of the link table reads them, and fused into
   # its [4, n, m] consumers they would be recomputed four times.
@@ -157,6 +169,53 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
   link, direction = code < NUM_DIRECTIONS, jnp.minimum(code, NUM_DIRECTIONS - 1)
   depth = jnp.where(link, jnp.maximum(o_axis, 0.0), 0.0)
   return Contacts(link=link, direction=direction, depth=depth, overlap=o_axis)
+
+
+# A body came down onto a one-way body when, at the start of the step, its bottom was
+# at or above the one-way body's top, up to this fraction of the pair's summed
+# half-heights (resting contacts sit a rounding error inside).
+ONE_WAY_MARGIN = 0.05
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class OneWay:
+  """The bodies the one-way rule reads, `[n]` bool each.
+
+  Attributes:
+    one_way: jump-through bodies (`World.one_way`, active ones).
+    solid: immovable bodies that are not one-way: walls and floors. They block a
+      one-way body on every side (a movable one-way crate rests on the floor).
+  """
+
+  one_way: jax.Array
+  solid: jax.Array
+
+
+def _one_way_rule(ref: jax.Array, half: jax.Array, cand: Candidates, ow: OneWay,
+                  hy: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+  """Which pairs with a one-way member are contacts, `[n, m]` each.
+
+  A one-way body blocks only bodies that come down onto it from above: those whose
+  bottom was at or above its top at `ref` (the start of the step). It lets the
+  others pass, from below and from the sides; solid immovable bodies block it like
+  any body. Two one-way bodies meet when one came down onto the other.
+
+  Returns:
+    `(admitted, vertical, upward)`: the pair may be a contact; its contact axis is y
+    by the rule (not by the overlaps); and then the partner lies above (`+y`).
+  """
+  col = lambda x: x[:, 1][:, None]
+  partner = lambda x: cand.gather(x[:, 1])
+  margin = ONE_WAY_MARGIN * hy
+  i_above = col(ref) - col(half) >= partner(ref) + partner(half) - margin
+  j_above = partner(ref) - partner(half) >= col(ref) + col(half) - margin
+  ow_i, ow_j = ow.one_way[:, None], cand.gather(ow.one_way)
+  solid_i, solid_j = ow.solid[:, None], cand.gather(ow.solid)
+  admitted = jnp.where(ow_i & ow_j, i_above | j_above,
+                       (~ow_j | solid_i | i_above) & (~ow_i | solid_j | j_above))
+  vertical = (ow_i | ow_j) & ~(solid_i | solid_j)
+  return admitted, vertical, j_above
 
 
 def _materialise(x: jax.Array) -> jax.Array:
@@ -291,8 +350,8 @@ class Links:
 
 
 def links(pos: jax.Array, half: jax.Array, cand: Candidates, *, skin: float,
-          limit: int | None, rows: jax.Array, start: jax.Array | None = None
-          ) -> tuple[Links, jax.Array]:
+          limit: int | None, rows: jax.Array, start: jax.Array | None = None,
+          one_way: OneWay | None = None) -> tuple[Links, jax.Array]:
   """The contacts-and-links stage of a pass: `contacts`, then `link_table`.
 
   Args:
@@ -304,11 +363,12 @@ def links(pos: jax.Array, half: jax.Array, cand: Candidates, *, skin: float,
       body's row is never needed: its flag decides every split it is in, and it never
       moves).
     start: optional `[n, 2]` centres at the start of the step (contact axes).
+    one_way: optional one-way bodies (`OneWay`, see `contacts`).
 
   Returns:
     `(links, overflow)`: the `[l, 4, n]` table and whether a row lost links.
   """
-  return link_table(contacts(pos, half, cand, skin, start), cand, limit, rows=rows)
+  return link_table(contacts(pos, half, cand, skin, start, one_way), cand, limit, rows=rows)
 
 
 def by_direction(c: Contacts, rows: jax.Array | None = None) -> jax.Array:

@@ -73,7 +73,10 @@ def for_world(cls, world, /, **overrides):
   gravity = np.asarray(world.gravity, np.float64)  # [2] or [b, 2].
   switches = dict(
       gravity=bool(np.any(np.any(movable, axis=-1) & np.any(gravity != 0, axis=-1))),
-      friction=bool(np.any(active & (np.asarray(world.friction) > 0))))
+      friction=bool(np.any(active & (np.asarray(world.friction) > 0))),
+      one_way=bool(np.any(active & np.asarray(world.one_way))),
+      sensors=bool(np.any(active & np.asarray(world.sensor))),
+      layers=uses_layers(world))
   switches.update({k: v for k, v in overrides.items() if k in switches})
   derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps", "links")
   base = cls(**{**{k: v for k, v in overrides.items() if k not in derived_keys}, **switches})
@@ -105,6 +108,21 @@ def for_world(cls, world, /, **overrides):
     derived["links"] = links if links < row else None
   derived.update({k: v for k, v in overrides.items() if k in derived_keys})
   return base.replace(**derived)
+
+
+def uses_layers(world) -> bool:
+  """Whether collision layers keep some pair of active bodies of a world apart (host).
+
+  True when an active body has category 0 (it collides with nothing) or a mask that
+  misses a layer some active body of its world is in. Otherwise every mask covers
+  every category present and every pair interacts, so layers can be left out.
+  """
+  active = np.asarray(world.active)
+  category = np.where(active, np.asarray(world.category), 0).astype(np.uint64)
+  present = np.bitwise_or.reduce(category, axis=-1, keepdims=True)  # Per world.
+  mask = np.asarray(world.mask).astype(np.uint64)
+  misses = (mask & present) != present
+  return bool(np.any(active & ((category == 0) | misses)))
 
 
 class _SubstepNeed(NamedTuple):

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxchain import broadphase, chain, geometry, status, velocity
+from jaxchain import broadphase, chain, flags, geometry, status, velocity
 from jaxchain.config import Config
 from jaxchain.sharding import in_auto_axes
 from jaxchain.world import World
@@ -58,16 +58,22 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
   friction, flags. So a pass's velocities always follow its positions.
 
   Returns:
-    `(pos, vel, status, crushed)` (`vel` None without `vel`).
+    `(pos, vel, status, crushed, touching)` (`vel` None without `vel`; `touching`
+    `[4, n]`, ORed over the passes).
   """
   mass = chain.body_mass(world.inv_mass, world.active)
   movable = world.movable
+  one_way = None
+  if config.one_way:
+    fixed = world.active & (world.inv_mass == 0)
+    one_way = geometry.OneWay(one_way=world.active & world.one_way, solid=fixed & ~world.one_way)
 
   def one_pass(_, carry):
-    p, v, code, _, crushed = carry
+    p, v, code, _, crushed, touching = carry
     cand, found = broadphase.candidates(p, world, config)
+    cand = flags.admit(cand, world, layers=config.layers, sensors=config.sensors)
     front, overflow = geometry.links(p, world.half, cand, skin=config.skin, limit=config.links,
-                                     rows=movable, start=start)
+                                     rows=movable, start=start, one_way=one_way)
     out = chain.displacement(front, mass, ~movable, depth=config.depth,
                              track_immovable=config.immovable, vel=v, stick=velocity.STICK,
                              converge=config.converge)
@@ -82,14 +88,26 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
                                     converge=config.converge)
       scaled = scaled | rubbed
     code = code | found | _pass_flags(overflow, scaled)
-    return p + out.disp, v, code, out.exhausted, crushed | out.crushed
+    touching = touching | flags.touching(front)
+    return p + out.disp, v, code, out.exhausted, crushed | out.crushed, touching
 
   zero = jnp.zeros((), jnp.int32)
-  init = (pos, vel, zero, jnp.zeros((), bool), jnp.zeros(world.active.shape, bool))
-  p, v, code, exhausted, crushed = lax.fori_loop(0, config.iterations, one_pass, init)
+  n = world.num_bodies
+  init = (pos, vel, zero, jnp.zeros((), bool), jnp.zeros((n,), bool),
+          jnp.zeros((geometry.NUM_DIRECTIONS, n), bool))
+  p, v, code, exhausted, crushed, touching = lax.fori_loop(0, config.iterations, one_pass, init)
   # Only the last pass counts: earlier passes may leave work that later ones finish.
   code = code | jnp.where(exhausted, status.DEPTH_EXHAUSTED, 0)
-  return p, v, code, crushed
+  return p, v, code, crushed, touching
+
+
+def _sensed(world: World, pos: jax.Array, config: Config) -> tuple[jax.Array, jax.Array]:
+  """`World.sensed` at `pos` (all False without `config.sensors`), and status bits
+  of the candidate table it reads (built again at `pos`: the bodies have moved)."""
+  if not config.sensors:
+    return jnp.zeros_like(world.sensed), jnp.zeros((), jnp.int32)
+  cand, found = broadphase.candidates(pos, world, config)
+  return flags.sensed(world, pos, cand), found
 
 
 def _pass_flags(overflow: jax.Array, scaled: jax.Array) -> jax.Array:
@@ -137,10 +155,12 @@ def resolve(world: World, config: Config) -> World:
 
 
 def _resolve(world: World, config: Config) -> World:
-  pos, _, code, crushed = _passes(world, world.pos, config)
-  code = code | _finite_code(world, world.pos, pos) | _crushed_code(crushed)
+  pos, _, code, crushed, touching = _passes(world, world.pos, config)
+  sensed, found = _sensed(world, pos, config)
+  code = code | found | _finite_code(world, world.pos, pos) | _crushed_code(crushed)
   code = code | _switched_off(world, config, physics=False)
-  return dataclasses.replace(world, pos=pos, crushed=crushed, status=world.status | code)
+  return dataclasses.replace(world, pos=pos, crushed=crushed, touching=touching.T, sensed=sensed,
+                             status=world.status | code)
 
 
 def _crushed_code(crushed: jax.Array) -> jax.Array:
@@ -157,6 +177,14 @@ def _switched_off(world: World, config: Config, physics: bool = True) -> jax.Arr
     off = off | (jnp.any(world.gravity != 0) & jnp.any(world.movable))
   if not config.immovable:
     off = off | jnp.any(world.active & (world.inv_mass == 0))
+  if not config.one_way:
+    off = off | jnp.any(world.active & world.one_way)
+  if not config.sensors:
+    off = off | jnp.any(world.active & world.sensor)
+  if not config.layers:  # As `sizing.uses_layers`: some mask misses a present layer.
+    category = jnp.where(world.active, world.category, jnp.zeros_like(world.category))
+    present = jnp.bitwise_or.reduce(category)
+    off = off | jnp.any(world.active & ((category == 0) | ((world.mask & present) != present)))
   return jnp.where(off, status.SWITCHED_OFF, 0)
 
 
@@ -170,10 +198,12 @@ def _substep(world: World, config: Config, sub_dt: float, accel: jax.Array | Non
     vel = vel + jnp.where(world.movable[:, None], world.gravity[None] * sub_dt, 0.0)
   code = jnp.where(_too_fast(world, vel, sub_dt), status.FAST_BODY, 0)
   predicted = world.pos + jnp.where(world.active[:, None], vel * sub_dt, 0.0)
-  pos, vel, found, crushed = _passes(world, predicted, config, start=world.pos, vel=vel)
-  code = code | found | _finite_code(world, pos, vel) | _crushed_code(crushed)
+  pos, vel, found, crushed, touching = _passes(world, predicted, config, start=world.pos, vel=vel)
+  sensed, seen = _sensed(world, pos, config)
+  code = code | found | seen | _finite_code(world, pos, vel) | _crushed_code(crushed)
   return dataclasses.replace(world, pos=pos, vel=vel, crushed=world.crushed | crushed,
-                       status=world.status | code)
+                             touching=world.touching | touching.T, sensed=sensed,
+                             status=world.status | code)
 
 
 def _too_fast(world: World, vel: jax.Array, sub_dt: float) -> jax.Array:
@@ -196,6 +226,7 @@ def _step_body(world: World, config: Config, accel: jax.Array | None) -> World:
   # Library code uses dataclasses.replace: World.replace validates concrete values, and
   # under jax.disable_jit a NaN must become NON_FINITE, not an exception.
   world = dataclasses.replace(world, crushed=jnp.zeros_like(world.crushed),  # ORed over substeps.
+                              touching=jnp.zeros_like(world.touching),
                               status=world.status | _switched_off(world, config))
   if config.substeps == 1:
     return _substep(world, config, sub_dt, accel)
