@@ -212,3 +212,75 @@ def test_converge_mode_is_forward_only():
   assert np.isfinite(jax.grad(loss)(0.0, jc.Config(depth=4)))
   with pytest.raises(ValueError, match="while_loop"):
     jax.grad(loss)(0.0, jc.Config(depth=4, converge=True))
+
+
+# --- Closed-loop rollouts (issue 12) ----------------------------------------------------
+
+def _player_and_box():
+  return jc.World.create([[0.0, 0.5], [1.1, 0.5], [0.0, -0.5]],
+                         [[0.5, 0.5], [0.5, 0.5], [50.0, 0.5]], [1.0, 1.0, INF], friction=0.3)
+
+
+CLOSED = jc.Config(friction=True, depth=4, one_way=False, layers=False, sensors=False)
+_U = jnp.asarray(np.random.default_rng(0).uniform(-3, 6, (30, 3, 2)).astype(np.float32))
+
+
+def _replay(world, t):  # A policy that ignores the world: the open-loop controls.
+  return _U[t]
+
+
+def test_closed_loop_with_a_time_only_policy_equals_the_open_loop_rollout():
+  world = _player_and_box()
+  closed = jc.rollout(world, CLOSED, 30, policy=_replay)
+  chex.assert_trees_all_close(closed, jc.rollout(world, CLOSED, 30, _U), **TOL["transform"])
+
+
+def _jump_when_grounded(world, t):
+  del t
+  up = jnp.where(jc.grounded(world)[0], 300.0, 0.0)  # One step of this is a 5 u/s jump.
+  return jnp.zeros_like(world.pos).at[0, 1].set(up)
+
+
+def test_policy_reads_the_world_under_jit_and_vmap():
+  """A player that jumps only when grounded: it leaves the floor, lands, jumps again."""
+  worlds = jc.stack([_player_and_box(), _player_and_box().replace(
+      gravity=jnp.asarray([0.0, -20.0], jnp.float32))])
+  run = jax.jit(jax.vmap(lambda w: jc.rollout(w, CLOSED, 120, policy=_jump_when_grounded,
+                                              record=("touching",))))
+  _, traj = run(worlds)
+  for b, g in enumerate((G, 20.0)):
+    y, grounded = np.asarray(traj.pos[b, :, 0, 1]), np.asarray(traj.touching[b, :, 0, 3])
+    # Each step's push is the policy's answer to the world before it: a jump follows
+    # exactly the steps that ended grounded.
+    takeoff = np.flatnonzero(grounded[:-1]) + 1
+    np.testing.assert_allclose(traj.vel[b, takeoff, 0, 1], (300.0 - g) * DT, rtol=1e-4)
+    assert y.max() > 0.5 + 0.5 * (300 * DT - g * DT) ** 2 / g * 0.8  # Airborne between.
+    assert 2 <= len(takeoff) <= 8 and grounded.sum() < len(grounded) / 2
+
+
+def test_grad_through_a_closed_loop_matches_finite_differences():
+  world = _player_and_box()
+
+  @jax.jit
+  def box_x(gain):
+    def track(w, t):  # A speed controller with a differentiable gain.
+      del t
+      return jnp.zeros_like(w.pos).at[0, 0].set(gain * (2.0 - w.vel[0, 0]))
+    return jc.rollout(world, CLOSED, 40, policy=track)[0].pos[1, 0]
+
+  g = jax.grad(box_x)(5.0)
+  fd = (box_x(5.01) - box_x(4.99)) / 0.02
+  assert np.isfinite(g) and g > 0
+  np.testing.assert_allclose(g, fd, rtol=0.05)
+
+
+def test_closed_loop_arguments_are_checked():
+  world = _player_and_box()
+  with pytest.raises(ValueError, match="not both"):
+    jc.rollout(world, CLOSED, 4, _U[:4], policy=_replay)
+  with pytest.raises(ValueError, match=r"must return accelerations of shape \(3, 2\)"):
+    jc.rollout(world, CLOSED, 4, policy=_bad_policy)
+
+
+def _bad_policy(world, t):
+  return jnp.zeros((2,))

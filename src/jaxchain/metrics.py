@@ -10,14 +10,20 @@ from jaxchain.world import World
 
 
 def penetration(world: World) -> jax.Array:
-  """`[n, n]` penetration depth of each pair that can be resolved: both active,
-  at least one movable; 0 elsewhere. Depth is the overlap along the axis of
+  """`[n, n]` penetration depth of each pair that can be resolved: both active, at
+  least one movable, neither a sensor nor one-way (they may overlap by design), and
+  in layers that collide; 0 elsewhere. Depth is the overlap along the axis of
   smaller overlap, clipped at 0. Dense O(n^2)."""
   pos, half = world.pos, world.half
   o = geometry.overlap(pos[:, None, :], half[:, None, :], pos[None], half[None])
   depth = jnp.maximum(jnp.minimum(o[..., 0], o[..., 1]), 0.0)
   pair = world.active[:, None] & world.active[None, :] & ~jnp.eye(pos.shape[0], dtype=bool)
   pair &= world.movable[:, None] | world.movable[None, :]
+  solid = world.active & ~world.sensor & ~world.one_way
+  pair &= solid[:, None] & solid[None, :]
+  zero = jnp.zeros((), world.category.dtype)
+  pair &= ((world.category[:, None] & world.mask[None, :]) != zero) & (
+      (world.category[None, :] & world.mask[:, None]) != zero)
   return jnp.where(pair, depth, 0.0)
 
 

@@ -1,0 +1,222 @@
+"""The platformer toolkit (issue 12): contact flags, one-way bodies, layers, sensors.
+
+Every scene is a world of at most `N` bodies padded to `N`, and all of them run in one
+batch through one compiled rollout (`_runs`, module-scoped) with every feature on:
+one compile for the whole module. Each test reads its own scene's trajectory.
+"""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxchain as jc
+from jaxchain import flags, geometry, levels, status
+from tests.helpers import TOL
+
+INF = float("inf")
+N = 4
+T = 90
+DT = 1 / 60
+CFG = jc.Config(depth=4, links=4, one_way=True, layers=True, sensors=True)
+PLAYER, BOX = levels.PLAYER, levels.BOX
+FLOOR = dict(pos=[0.0, -0.5], half=[8.0, 0.5], mass=INF)
+
+
+def body(pos, half, mass=1.0, **kw):
+  return dict(pos=pos, half=[half, half] if np.isscalar(half) else half, mass=mass, **kw)
+
+
+def world(*bodies, gravity=(0.0, -9.81), friction=0.0):
+  """A world of `bodies` (dicts of per-body keywords), padded to `N`."""
+  keys = ("vel", "one_way", "sensor", "category", "mask")
+  defaults = dict(vel=[0.0, 0.0], one_way=False, sensor=False, category=1, mask=0xFFFFFFFF)
+  arrays = {k: [b.get(k, defaults[k]) for b in bodies] for k in keys}
+  w = jc.World.create([b["pos"] for b in bodies], [b["half"] for b in bodies],
+                      [b["mass"] for b in bodies], vel=arrays["vel"], gravity=gravity,
+                      friction=friction, one_way=np.array(arrays["one_way"]),
+                      sensor=np.array(arrays["sensor"]), category=np.array(arrays["category"]),
+                      mask=np.array(arrays["mask"], np.uint64))
+  return w.pad(N)
+
+
+def push(index, ax, steps=T):
+  """Controls `[T, N, 2]` accelerating body `index` along x by `ax` for `steps` steps."""
+  u = np.zeros((T, N, 2), np.float32)
+  u[:steps, index, 0] = ax
+  return u
+
+
+# name: (world, controls)
+SCENES = {
+    # One-way platform (immovable slab, top at 0.1).
+    "drop_on_platform": (world(body([0.0, 0.0], [2.0, 0.1], INF, one_way=True),
+                               body([0.0, 1.0], 0.5)), None),
+    "up_through_platform": (world(body([0.0, 0.0], [2.0, 0.1], INF, one_way=True),
+                                  body([0.0, -1.0], 0.5, vel=[0.0, 8.0])), None),
+    "side_through_platform": (world(body([0.0, 0.0], [1.0, 0.5], INF, one_way=True),
+                                    body([-3.0, 0.0], 0.5, vel=[4.0, 0.0]), gravity=(0.0, 0.0)),
+                              None),
+    "push_on_platform": (world(body([0.0, 0.0], [4.0, 0.1], INF, one_way=True),
+                               body([-1.0, 0.6], 0.5), body([0.0, 0.6], 0.5), friction=0.3),
+                         push(1, 10.0)),
+    # A movable one-way crate rests on the floor; a box dropped on it rests on it.
+    "movable_one_way": (world(FLOOR, body([0.0, 0.5], 0.5, one_way=True),
+                              body([0.0, 2.0], 0.5)), None),
+    # Layers: the top box (category 4, mask 1) ignores the lower one (category 2).
+    "layers_apart": (world(FLOOR, body([0.0, 0.5], 0.5, category=2),
+                           body([0.0, 1.6], 0.5, category=4, mask=1)), None),
+    "layers_meet": (world(FLOOR, body([0.0, 0.5], 0.5, category=2),
+                          body([0.0, 1.6], 0.5, category=4, mask=3)), None),
+    # Layers in a chain: the player pushes box A; box B (layer 8) collides with layer 8
+    # only, so the chain passes through it.
+    "layers_chain": (world(body([0.0, 0.0], 0.5, category=PLAYER),
+                           body([1.0, 0.0], 0.5, category=BOX, mask=PLAYER | BOX),
+                           body([2.0, 0.0], 0.5, category=8, mask=8),
+                           gravity=(0.0, 0.0)), push(0, 6.0)),
+    # Sensors: a goal at x = 2 that admits boxes only; a box and a player cross it.
+    "sensor_sees_box": (world(body([2.0, 0.5], 0.5, INF, sensor=True, category=8, mask=BOX),
+                              body([4.0, 0.5], 0.45, vel=[-2.0, 0.0], category=BOX),
+                              gravity=(0.0, 0.0)), None),
+    "sensor_ignores_player": (world(body([2.0, 0.5], 0.5, INF, sensor=True, category=8, mask=BOX),
+                                    body([4.0, 0.5], 0.4, vel=[-2.0, 0.0], category=PLAYER),
+                                    gravity=(0.0, 0.0)), None),
+    # Flags: a box on the floor pushed against a wall on its right.
+    "against_wall": (world(FLOOR, body([2.0, 1.0], [0.5, 1.0], INF), body([0.0, 0.5], 0.5)),
+                     push(2, 5.0)),
+}
+NAMES = list(SCENES)
+
+
+@pytest.fixture(scope="module")
+def runs():
+  """Every scene's `(final, trajectory)`, from one compiled, vmapped rollout."""
+  worlds = jc.stack([w for w, _ in SCENES.values()])
+  controls = jnp.asarray(np.stack([np.zeros((T, N, 2), np.float32) if u is None else u
+                                   for _, u in SCENES.values()]))
+  run = jax.jit(jax.vmap(lambda w, u: jc.rollout(w, CFG, T, u, record=jc.stepping.RECORDABLE)))
+  final, traj = run(worlds, controls)
+  pick = lambda tree, b: jax.tree.map(lambda x: np.asarray(x[b]), tree)
+  return {name: (pick(final, b), pick(traj, b)) for b, name in enumerate(NAMES)}
+
+
+def test_no_scene_raises_a_status_bit(runs):
+  for name, (final, traj) in runs.items():
+    assert int(final.status) == 0, (name, jc.check(final))
+
+
+# --- One-way platforms ------------------------------------------------------------------
+
+
+def test_body_dropped_onto_a_one_way_platform_rests_on_it(runs):
+  final, traj = runs["drop_on_platform"]
+  np.testing.assert_allclose(final.pos[1], [0.0, 0.6], **TOL["exact_f32"])
+  np.testing.assert_array_equal(final.vel[1], [0.0, 0.0])
+  assert final.touching[1].tolist() == [False, False, False, True]
+  assert np.all(traj.pos[:, 1, 1] >= 0.6 - 1e-6)  # Never sank into it.
+
+
+def test_body_passes_up_through_a_one_way_platform_and_lands_on_top(runs):
+  final, traj = runs["up_through_platform"]
+  y = traj.pos[:, 1, 1]
+  inside = (y - 0.5 < 0.1) & (y + 0.5 > -0.1)
+  assert inside.any()  # It went through the slab from below ...
+  np.testing.assert_allclose(y[: np.argmax(inside) + 1], -1.0 + np.cumsum(
+      8.0 - 9.81 * DT * np.arange(1, np.argmax(inside) + 2)) * DT, atol=1e-4)  # ... unhindered,
+  assert y.max() > 0.6 + 1.0  # ... rose well above it,
+  np.testing.assert_allclose(final.pos[1], [0.0, 0.6], **TOL["exact_f32"])  # and landed on it.
+  np.testing.assert_array_equal(final.vel[1], [0.0, 0.0])
+
+
+def test_body_passes_a_one_way_platform_from_the_side(runs):
+  final, traj = runs["side_through_platform"]
+  want = -3.0 + 4.0 * DT * np.arange(1, T + 1)
+  np.testing.assert_allclose(traj.pos[:, 1, 0], want, atol=1e-5)  # Never slowed.
+  np.testing.assert_array_equal(traj.vel[:, 1], np.tile([4.0, 0.0], (T, 1)))
+  assert not traj.touching[:, 1].any()
+
+
+def test_chain_works_along_a_one_way_platform(runs):
+  final, traj = runs["push_on_platform"]
+  # The player pushes the box along the platform: both stay on it, moving as one.
+  np.testing.assert_allclose(final.pos[1:3, 1], [0.6, 0.6], **TOL["exact_f32"])
+  np.testing.assert_allclose(final.vel[1], final.vel[2], atol=1e-5)
+  assert final.vel[1, 0] > 1.0
+  np.testing.assert_allclose(final.pos[2, 0] - final.pos[1, 0], 1.0, atol=1e-4)
+  assert final.touching[1, 0] and final.touching[2, 1]  # Pushing, pushed.
+  assert final.touching[1, 3] and final.touching[2, 3]  # Both standing on the platform.
+
+
+def test_movable_one_way_body_rests_on_the_floor_and_carries_a_box(runs):
+  final, _ = runs["movable_one_way"]
+  np.testing.assert_allclose(final.pos[1:3, 1], [0.5, 1.5], **TOL["exact_f32"])
+  np.testing.assert_allclose(final.vel[1:3], 0.0, atol=1e-6)
+
+
+# --- Collision layers --------------------------------------------------------------------
+
+
+def test_layers_that_do_not_collide_pass_through(runs):
+  final, _ = runs["layers_apart"]
+  np.testing.assert_allclose(final.pos[1:3, 1], [0.5, 0.5], **TOL["exact_f32"])  # Both on the floor.
+  assert final.touching[2].tolist() == [False, False, False, True]  # Only the floor.
+
+
+def test_layers_that_collide_stack(runs):
+  final, _ = runs["layers_meet"]
+  np.testing.assert_allclose(final.pos[1:3, 1], [0.5, 1.5], **TOL["exact_f32"])
+
+
+def test_chain_stops_at_a_layer_it_does_not_share(runs):
+  final, traj = runs["layers_chain"]
+  # Player and box A move as one (the push shared over both masses); box B never moves.
+  v = 6.0 * DT * np.arange(1, T + 1) / 2
+  np.testing.assert_allclose(traj.vel[:, 0, 0], v, atol=1e-4)
+  np.testing.assert_allclose(traj.vel[:, 1, 0], v, atol=1e-4)
+  np.testing.assert_array_equal(traj.pos[:, 2], np.tile([2.0, 0.0], (T, 1)))
+  assert final.pos[0, 0] > 2.5  # Both passed through B.
+  assert not final.touching[2].any()
+
+
+# --- Sensors ------------------------------------------------------------------------------
+
+
+def test_sensor_sees_a_box_while_it_overlaps_and_never_pushes(runs):
+  final, traj = runs["sensor_sees_box"]
+  x = 4.0 - 2.0 * DT * np.arange(1, T + 1)
+  np.testing.assert_allclose(traj.pos[:, 1, 0], x, atol=1e-5)  # Not pushed.
+  np.testing.assert_array_equal(traj.pos[:, 0], np.tile([2.0, 0.5], (T, 1)))  # Not moved.
+  overlapping = np.abs(x - 2.0) < 0.95
+  np.testing.assert_array_equal(traj.sensed[:, 0], overlapping)
+  assert overlapping.any() and not overlapping.all()
+  assert not traj.sensed[:, 1].any()  # Only sensors sense.
+
+
+def test_sensor_does_not_see_a_body_its_mask_refuses(runs):
+  final, traj = runs["sensor_ignores_player"]
+  assert not traj.sensed.any()
+  np.testing.assert_allclose(traj.pos[:, 1, 0], 4.0 - 2.0 * DT * np.arange(1, T + 1), atol=1e-5)
+
+
+# --- Contact flags --------------------------------------------------------------------------
+
+
+def test_flags_on_a_floor_and_against_a_wall(runs):
+  final, traj = runs["against_wall"]
+  np.testing.assert_allclose(final.pos[2], [1.0, 0.5], **TOL["exact_f32"])
+  assert final.touching[2].tolist() == [True, False, False, True]  # Wall on the right, floor below.
+  assert jc.grounded(final)[2] and jc.blocked(final)["right"][2]
+  assert not jc.blocked(final)["left"][2]
+  assert not final.touching[0].any() and not final.touching[1].any()  # Immovable: no rows.
+  # Grounded from the first step on (it starts resting on the floor).
+  assert traj.touching[:, 2, 3].all()
+
+
+def test_trajectory_records_only_what_is_asked():
+  w = SCENES["drop_on_platform"][0]
+  _, traj = jc.rollout(w, CFG, 3)
+  assert traj.status is None and traj.touching is None
+  with pytest.raises(ValueError, match="record= takes names from"):
+    jc.rollout(w, CFG, 3, record=("touch",))
