@@ -3,6 +3,7 @@
 import dataclasses
 
 import jax
+import jax.extend.core
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -66,15 +67,62 @@ def _jaxpr_lines(config, world):
   return str(jax.make_jaxpr(lambda w: jc.step(w, config))(world)).count("\n")
 
 
+def _pair_ops(config, world) -> int:
+  """Equations of the step (in every sub-jaxpr) with an `[n, n]` output: per-pair work."""
+  n = world.num_bodies
+
+  def count(jaxpr) -> int:
+    total = 0
+    for eqn in jaxpr.eqns:
+      total += sum(getattr(v.aval, "shape", None) == (n, n) for v in eqn.outvars)
+      for sub in jax.extend.core.jaxprs_in_params(eqn.params):
+        total += count(sub)
+    return total
+
+  return count(jax.make_jaxpr(lambda w: jc.step(w, config))(world).jaxpr)
+
+
 @pytest.mark.parametrize("feature", [
     dict(gravity=True), dict(friction=True), dict(immovable=True), dict(substeps=2),
+    dict(one_way=True), dict(layers=True), dict(sensors=True),
 ])
 def test_switched_off_features_are_not_traced(feature):
   world = scenes.push_chain(3, wall=False).world(gravity=(0.0, 0.0))
   lean = jc.Config.for_world(world)
-  assert (lean.has_gravity, lean.has_friction, lean.immovable, lean.substeps) == (
-      False, False, False, 1)
-  assert _jaxpr_lines(lean, world) < _jaxpr_lines(lean.replace(**feature), world)
+  assert (lean.has_gravity, lean.has_friction, lean.immovable, lean.substeps, lean.one_way,
+          lean.layers, lean.sensors) == (False, False, False, 1, False, False, False)
+  if set(feature) & {"one_way", "layers", "sensors"}:
+    # Left out, they cost no per-pair work at all (only an O(n) SWITCHED_OFF check).
+    assert _pair_ops(lean, world) < _pair_ops(lean.replace(**feature), world)
+  else:
+    assert _jaxpr_lines(lean, world) < _jaxpr_lines(lean.replace(**feature), world)
+
+
+@pytest.mark.parametrize("change, switch", [
+    (dict(one_way=[False, True, False, False]), "one_way"),
+    (dict(sensor=[False, False, True, False]), "sensors"),
+    (dict(mask=[0xFFFFFFFF, 1, 0xFFFFFFFF, 0xFFFFFFFF], category=[1, 1, 2, 1]), "layers"),
+    (dict(category=[1, 0, 1, 1]), "layers"),  # Category 0 collides with nothing.
+])
+def test_for_world_switches_on_what_the_world_uses_and_flags_what_a_config_leaves_out(
+    change, switch):
+  world = scenes.push_chain(3, wall=False).world(gravity=(0.0, 0.0))
+  assert not getattr(jc.Config.for_world(world), switch)
+  used = world.replace(**{k: np.asarray(v, world.__dict__[k].dtype) for k, v in change.items()})
+  cfg = jc.Config.for_world(used)
+  assert getattr(cfg, switch)
+  assert int(jc.step(used, cfg).status) == 0
+  off = jc.step(used, cfg.replace(**{switch: False}))
+  assert int(off.status) & jc.status.SWITCHED_OFF
+
+
+def test_layers_that_every_mask_covers_are_left_out():
+  # Every body in layer 2, every mask all bits: every pair interacts, nothing to trace.
+  world = scenes.push_chain(3, wall=False).world(gravity=(0.0, 0.0))
+  world = world.replace(category=np.full(4, 2, np.uint32))
+  cfg = jc.Config.for_world(world)
+  assert not cfg.layers
+  assert int(jc.step(world, cfg).status) == 0  # And not flagged as switched off.
 
 
 def test_lean_config_gives_the_same_answer_on_scenes_it_fits():

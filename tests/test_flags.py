@@ -220,3 +220,64 @@ def test_trajectory_records_only_what_is_asked():
   assert traj.status is None and traj.touching is None
   with pytest.raises(ValueError, match="record= takes names from"):
     jc.rollout(w, CFG, 3, record=("touch",))
+
+
+# --- The grid respects layers, sensors and one-way bodies --------------------------------
+
+
+def test_grid_broadphase_gives_the_dense_answers(runs):
+  names = ["drop_on_platform", "up_through_platform", "layers_apart", "layers_chain",
+           "sensor_sees_box", "against_wall"]
+  worlds = jc.stack([SCENES[k][0] for k in names])
+  controls = jnp.asarray(np.stack([np.zeros((T, N, 2), np.float32) if SCENES[k][1] is None
+                                   else SCENES[k][1] for k in names]))
+  grid = jc.Config.for_world(worlds, broadphase="grid", depth=4, links=4, one_way=True,
+                             layers=True, sensors=True)
+  assert grid.uses_grid(N)
+  _, traj = jax.jit(jax.vmap(lambda w, u: jc.rollout(w, grid, T, u, record=("touching", "sensed"))))(
+      worlds, controls)
+  for b, name in enumerate(names):
+    want = runs[name][1]
+    np.testing.assert_allclose(traj.pos[b], want.pos, atol=1e-5, err_msg=name)
+    np.testing.assert_array_equal(traj.sensed[b], want.sensed, err_msg=name)
+    np.testing.assert_array_equal(traj.touching[b], want.touching, err_msg=name)
+
+
+# --- Levels end to end --------------------------------------------------------------------
+
+
+def test_sokoban_box_pushed_onto_its_goal_is_sensed():
+  level = levels.load("sokoban1")
+  w = level.world()
+  player, goal = level.player, level.tags["goal"][0]
+  cfg = jc.Config.for_world(w)
+  u = jnp.zeros_like(w.pos).at[player, 0].set(4.0)
+  _, traj = jc.rollout(w, cfg, 90, u, record=("sensed",))
+  box = level.tags["box"][0]
+  sensed = np.asarray(traj.sensed[:, goal])
+  box_x = np.asarray(traj.pos[:, box, 0])
+  np.testing.assert_array_equal(sensed, np.abs(box_x - level.pos[goal, 0]) < 0.45 + 0.05)
+  assert not sensed[0] and sensed[-1]  # Not at the start; on the goal at the end.
+  np.testing.assert_allclose(box_x[-1], 5.0 - 0.45, atol=1e-5)  # Against the wall behind it.
+
+
+def _climb(world, t):
+  """Push right gently and jump whenever grounded (the demo's policy)."""
+  del t
+  up = jnp.where(jc.grounded(world)[_CLIMBER], 420.0, 0.0)  # A 7 u/s jump: 2.5 high.
+  return jnp.zeros_like(world.pos).at[_CLIMBER].set(jnp.stack([jnp.asarray(2.0), up]))
+
+
+_CLIMBER = levels.load("platformer1").player
+
+
+def test_player_jumps_up_through_a_one_way_ledge_and_stands_on_it():
+  level = levels.load("platformer1")
+  ledge_top = 3.0  # The `===` of row 6: a slab at the top of the cell y in [2, 3].
+  w = level.world(friction=0.3)
+  _, traj = jc.rollout(w, jc.Config.for_world(w), 240, policy=_climb, record=("touching",))
+  y = np.asarray(traj.pos[:, _CLIMBER, 1])
+  standing = np.isclose(y, ledge_top + 0.4, atol=1e-4) & np.asarray(traj.touching[:, _CLIMBER, 3])
+  assert standing.any()
+  first = np.argmax(standing)
+  assert (y[:first] < ledge_top - 0.4).any()  # It came from below the ledge.

@@ -218,3 +218,40 @@ def test_replace_skips_checks_on_traced_values():
   np.testing.assert_allclose(bumped, -1.0)
   grad = jax.grad(lambda x: jnp.sum(w.replace(half=w.half * x).half))(1.0)
   assert float(grad) == 2.0  # The sum of the half-extents.
+
+
+# --- Platformer fields (issue 12) ---------------------------------------------------------
+
+
+def test_create_takes_one_way_sensor_and_layers_per_body_or_for_all():
+  w = jc.World.create([[0.0, 0.0], [2.0, 0.0]], [0.5, 0.5], 1.0, one_way=[False, True],
+                      sensor=True, category=[1, 2**31], mask=3)
+  assert w.one_way.tolist() == [False, True] and w.sensor.tolist() == [True, True]
+  assert w.category.dtype == np.uint32 and w.category.tolist() == [1, 2**31]
+  assert w.mask.tolist() == [3, 3]
+  assert w.touching.shape == (2, 4) and not w.touching.any() and not w.sensed.any()
+  d = jc.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0)
+  assert (d.one_way.tolist(), d.sensor.tolist(), d.category.tolist(), d.mask.tolist()) == (
+      [False], [False], [1], [0xFFFFFFFF])
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(one_way=1), "one_way: expected bools"),
+    (dict(sensor=[True]), r"sensor: expected shape \(2,\)"),
+    (dict(category=-1), r"category: layer bits must lie in \[0, 2\*\*32\) \(uint32\); got -1"),
+    (dict(mask=[0, 2**32]), r"mask: layer bits .* bodies \[1\] are not"),
+    (dict(category=1.5), "category: expected integers"),
+    (dict(mask=True), "mask: expected integers"),
+])
+def test_create_rejects_bad_platformer_fields(kwargs, message):
+  with pytest.raises(ValueError, match=message):
+    jc.World.create([[0.0, 0.0], [2.0, 0.0]], [0.5, 0.5], 1.0, **kwargs)
+
+
+def test_replace_and_stack_keep_layer_bits():
+  w = jc.World.create([[0.0, 0.0], [2.0, 0.0]], [0.5, 0.5], 1.0, category=[2, 4])
+  assert w.replace(mask=[1, 2]).mask.tolist() == [1, 2]
+  with pytest.raises(ValueError, match="layer bits"):
+    w.replace(mask=[-1, 2])
+  b = jc.stack([w, jc.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0)])
+  assert b.category.tolist() == [[2, 4], [1, 1]] and b.touching.shape == (2, 2, 4)

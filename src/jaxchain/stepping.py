@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -31,10 +32,21 @@ class Trajectory:
   Attributes:
     pos: `[t, n, 2]` centres after each step.
     vel: `[t, n, 2]` velocities after each step.
+    status: `[t]` int32 status bits after each step, if recorded (else None).
+    touching: `[t, n, 4]` bool contact flags of each step, if recorded.
+    crushed: `[t, n]` bool, crushed in each step, if recorded.
+    sensed: `[t, n]` bool, sensors overlapped at the end of each step, if recorded.
   """
 
   pos: jax.Array
   vel: jax.Array
+  status: jax.Array | None = None
+  touching: jax.Array | None = None
+  crushed: jax.Array | None = None
+  sensed: jax.Array | None = None
+
+
+RECORDABLE = ("status", "touching", "crushed", "sensed")  # Opt-in `Trajectory` fields.
 
 
 def _check_single(world: World, fn: str, batch_hint: str | None = None) -> None:
@@ -276,10 +288,11 @@ def make_step(config: Config):
   return jax.jit(step_fn)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "n_steps"))
-def rollout(world: World, config: Config, n_steps: int,
-            controls: jax.Array | None = None) -> tuple[World, Trajectory]:
-  """`n_steps` steps under `lax.scan`.
+@functools.partial(jax.jit, static_argnames=("config", "n_steps", "policy", "record"))
+def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | None = None, *,
+            policy: Callable[[World, jax.Array], jax.Array] | None = None,
+            record: Sequence[str] = ()) -> tuple[World, Trajectory]:
+  """`n_steps` steps under `lax.scan`, open-loop (`controls`) or closed-loop (`policy`).
 
   Args:
     world: a single world (use `jax.vmap` for a batch).
@@ -287,19 +300,63 @@ def rollout(world: World, config: Config, n_steps: int,
     n_steps: number of steps (static).
     controls: optional accelerations, `[n_steps, n, 2]` (one per step) or
       `[n, 2]` (the same every step).
+    policy: optional `policy(world, t) -> accel` (`[n, 2]`), called before each step
+      with the world as it is and the step index `t` (int32 scalar, from 0): a
+      closed loop. Jittable, vmappable and differentiable like the rest; it is a
+      static argument (hashed by identity), so define it once rather than as a new
+      `lambda` per call (each new function compiles again). To differentiate with
+      respect to a policy's parameters, close over them inside the function you
+      differentiate (see the README, "Closed-loop rollouts").
+    record: which extra per-step outputs the trajectory keeps, of
+      `("status", "touching", "crushed", "sensed")` (static; default none, to keep
+      memory small).
 
   Returns:
     `(final_world, trajectory)` with `trajectory.pos` of shape `[n_steps, n, 2]`.
+
+  Raises:
+    ValueError: for controls of the wrong shape, both `controls` and `policy`, a
+      policy whose output is not `[n, 2]`, or an unknown `record` name.
+
+  Examples:
+    >>> import jax.numpy as jnp
+    >>> import jaxchain as jc
+    >>> w = jc.World.create([[0.0, 0.5], [0.0, -0.5]], [[0.5, 0.5], [5.0, 0.5]],
+    ...                     [1.0, float("inf")], gravity=(0.0, 0.0))
+    >>> def push_right(world, t):  # Accelerate body 0 for the first 30 steps.
+    ...   return jnp.zeros_like(world.pos).at[0, 0].set(jnp.where(t < 30, 6.0, 0.0))
+    >>> final, traj = jc.rollout(w, jc.Config(), 60, policy=push_right, record=("touching",))
+    >>> round(float(final.vel[0, 0]), 4), traj.touching.shape
+    (3.0, (60, 2, 4))
   """
   _check_single(world, "rollout")
+  record = tuple(record)
+  unknown = [r for r in record if r not in RECORDABLE]
+  if unknown:
+    raise ValueError(f"rollout: record= takes names from {RECORDABLE}, got {unknown}")
+  if controls is not None and policy is not None:
+    raise ValueError("rollout: pass controls= (open loop) or policy= (closed loop), not both; "
+                     "add the controls inside the policy: policy(world, t) + controls[t]")
   if controls is not None and controls.ndim == 2:
     controls = jnp.broadcast_to(controls, (n_steps,) + controls.shape)
   if controls is not None and controls.shape != (n_steps,) + world.pos.shape:
     raise ValueError(f"rollout: controls must have shape {(n_steps,) + world.pos.shape} "
                      f"or {world.pos.shape}, got {controls.shape}")
 
-  def body(w, accel):
-    w = _step(w, config, accel)
-    return w, Trajectory(pos=w.pos, vel=w.vel)
+  def accel_of(w, t, given):
+    if policy is None:
+      return given
+    accel = policy(w, t)
+    if getattr(accel, "shape", None) != w.pos.shape:
+      raise ValueError(f"rollout: policy(world, t) must return accelerations of shape "
+                       f"{w.pos.shape}, got {getattr(accel, 'shape', type(accel).__name__)}")
+    return jnp.asarray(accel, w.pos.dtype)
 
-  return lax.scan(body, world, controls, length=n_steps)
+  def body(w, xs):
+    t, given = xs
+    w = _step(w, config, accel_of(w, t, given))
+    extra = {name: getattr(w, name) for name in record}
+    return w, Trajectory(pos=w.pos, vel=w.vel, **extra)
+
+  steps = jnp.arange(n_steps, dtype=jnp.int32)
+  return lax.scan(body, world, (steps, controls), length=n_steps)
