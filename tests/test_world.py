@@ -255,3 +255,16 @@ def test_replace_and_stack_keep_layer_bits():
     w.replace(mask=[-1, 2])
   b = jc.stack([w, jc.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0)])
   assert b.category.tolist() == [[2, 4], [1, 1]] and b.touching.shape == (2, 2, 4)
+
+
+def test_from_arrays_equals_create_and_runs_under_jit_and_vmap():
+  args = ([[0.0, 0.0], [1.0, 0.0]], [0.5, 0.5], [1.0, float("inf")])
+  kw = dict(friction=0.2, category=[1, 2], one_way=[False, True], gravity=(0.0, -3.0))
+  a, b = jc.World.create(*args, **kw), jc.World.from_arrays(*args, **kw)
+  for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+    assert x.dtype == y.dtype and np.array_equal(x, y)
+  build = jax.jit(jax.vmap(lambda y: jc.World.from_arrays(
+      jnp.zeros((2, 2)).at[1, 1].set(y), [0.5, 0.5], jnp.array([jnp.inf, 1.0]))))
+  w = build(jnp.array([1.0, 2.0, 3.0]))
+  assert w.pos.shape == (3, 2, 2) and w.inv_mass.tolist() == [[0.0, 1.0]] * 3
+  assert w.pos[:, 1, 1].tolist() == [1.0, 2.0, 3.0]

@@ -187,6 +187,53 @@ class World:
                crushed=jnp.zeros(n, bool), touching=jnp.zeros((n, 4), bool),
                sensed=jnp.zeros(n, bool), status=jnp.zeros((), jnp.int32))
 
+  @classmethod
+  def from_arrays(cls, pos, half, mass, vel=None, active=None, *, friction=0.0,
+                  gravity=(0.0, -9.81), one_way=False, sensor=False,
+                  category=DEFAULT_CATEGORY, mask=ALL_LAYERS) -> World:
+    """Builds a world with `jnp` operations only: it runs under `jit` and `vmap`.
+
+    The same arguments and broadcasting as `World.create` (scalars and `[2]`
+    half-extents for all bodies), but nothing is checked on the host: this is the
+    constructor for traced code, such as an environment's `reset` that randomises a
+    level inside a compiled step. Give it values `World.create` would accept; a NaN
+    or a negative mass here is not reported until a step sets `status.NON_FINITE`
+    (or never, for a wrong mass). Floats take JAX's default dtype.
+
+    Args:
+      pos: `[n, 2]` centres (`n` static).
+      half: `[n, 2]` or `[2]` half-extents.
+      mass: `[n]` or scalar masses in `(0, inf]`; `inf` is immovable.
+      vel, active, friction, gravity, one_way, sensor, category, mask: as in
+        `World.create`.
+
+    Examples:
+      >>> import jax, jax.numpy as jnp
+      >>> import jaxchain as jc
+      >>> def reset(key):  # A random drop height, built inside jit.
+      ...   y = jax.random.uniform(key, (), minval=1.0, maxval=2.0)
+      ...   return jc.World.from_arrays(jnp.array([[0.0, 0.0], [0.0, 0.0]]).at[1, 1].set(y),
+      ...                               [0.5, 0.5], jnp.array([jnp.inf, 1.0]))
+      >>> w = jax.jit(reset)(jax.random.key(0))
+      >>> w.inv_mass.tolist(), bool(w.pos[1, 1] >= 1.0)
+      ([0.0, 1.0], True)
+    """
+    dtype = jnp.asarray(0.0).dtype
+    pos = jnp.asarray(pos, dtype)
+    n = pos.shape[0]
+    per_body = lambda x, d, shape=(n,): jnp.broadcast_to(jnp.asarray(x, d), shape)
+    mass = per_body(mass, dtype)
+    inf = jnp.isinf(mass)
+    inv_mass = jnp.where(inf, 0.0, 1.0 / jnp.where(inf, 1.0, mass)).astype(dtype)
+    return cls(pos=pos, vel=per_body(0.0 if vel is None else vel, dtype, (n, 2)),
+               half=per_body(half, dtype, (n, 2)), inv_mass=inv_mass,
+               active=per_body(True if active is None else active, bool),
+               friction=per_body(friction, dtype), gravity=jnp.asarray(gravity, dtype),
+               one_way=per_body(one_way, bool), sensor=per_body(sensor, bool),
+               category=per_body(category, jnp.uint32), mask=per_body(mask, jnp.uint32),
+               crushed=jnp.zeros(n, bool), touching=jnp.zeros((n, 4), bool),
+               sensed=jnp.zeros(n, bool), status=jnp.zeros((), jnp.int32))
+
   def replace(self, **changes) -> World:
     """A copy with some fields changed, checked when the new values are concrete.
 
