@@ -46,8 +46,23 @@ def variants(worlds) -> dict[str, tuple[jc.Config, object]]:
   lean_free = jc.Config.for_world(free)
   frictionless = worlds.replace(friction=jnp.zeros_like(worlds.friction))
   top_down = worlds.replace(gravity=jnp.zeros_like(worlds.gravity))
+  n = worlds.num_bodies
+  body = jnp.arange(n)
+  # Issue 12's features, used: the floor is a one-way platform (first body), one box
+  # (body n - 1) is a sensor, and the player's layer ignores the last box.
+  used = worlds.replace(one_way=jnp.broadcast_to(body == 0, worlds.active.shape),
+                        sensor=jnp.broadcast_to(body == n - 1, worlds.active.shape),
+                        mask=jnp.where(body == n - 2, jnp.uint32(1), worlds.mask).astype(jnp.uint32),
+                        category=jnp.where(body == n - 3, jnp.uint32(2),
+                                           worlds.category).astype(jnp.uint32))
+  lean_used = jc.Config.for_world(used)
+  assert lean_used.one_way and lean_used.sensors and lean_used.layers, lean_used
   return {
       "lean (for_world)": (lean, worlds),
+      "one-way traced, unused": (lean.replace(one_way=True), worlds),
+      "layers traced, unused": (lean.replace(layers=True), worlds),
+      "sensors traced, unused": (lean.replace(sensors=True), worlds),
+      "one-way, layers and sensors used (for_world)": (lean_used, used),
       "friction off": (lean.replace(friction=False), frictionless),
       "gravity off (top-down scene)": (lean.replace(gravity=False), top_down),
       "substeps 2": (lean.replace(substeps=2), worlds),

@@ -5,7 +5,8 @@ batch through one compiled rollout (`_runs`, module-scoped) with every feature o
 one compile for the whole module. Each test reads its own scene's trajectory.
 """
 
-import dataclasses
+import importlib.util
+import pathlib
 
 import jax
 import jax.numpy as jnp
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 import jaxchain as jc
-from jaxchain import flags, geometry, levels, status
+from jaxchain import cli, levels
 from tests.helpers import TOL
 
 INF = float("inf")
@@ -281,3 +282,25 @@ def test_player_jumps_up_through_a_one_way_ledge_and_stands_on_it():
   assert standing.any()
   first = np.argmax(standing)
   assert (y[:first] < ledge_top - 0.4).any()  # It came from below the ledge.
+
+
+def test_jump_example_jumps_only_when_grounded_and_reaches_a_ledge(capsys):
+  spec = importlib.util.spec_from_file_location(
+      "jump_example", pathlib.Path(__file__).resolve().parents[1] / "examples" / "jump.py")
+  example = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(example)
+  assert example.main(["--worlds", "2", "--steps", "150"]) == 0
+  out = capsys.readouterr().out
+  assert out.count("stood on a one-way ledge: True") == 2 and "status: ok" in out
+
+
+def test_demo_runs_a_level_and_rejects_an_unknown_one(capsys):
+  figures = cli.demo(batch=2, steps=120, chunk=120, seed=0, depth=None, iterations=1,
+                     friction=0.3, push=2.0, progress=False, level="sokoban1")
+  assert figures["finite"] and figures["status_messages"] == {}
+  assert figures["worlds_sensed"] == 2  # The box ends on its goal in both worlds.
+  assert figures["max_penetration"] < 1e-4  # The goal sensor's overlap is not counted.
+  with pytest.raises(SystemExit) as exit_info:
+    cli.main(["demo", "--no-progress", "--level", "no_such_level"])
+  assert exit_info.value.code == 2
+  assert "no shipped level of that name" in capsys.readouterr().err
