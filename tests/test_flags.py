@@ -221,6 +221,9 @@ def test_trajectory_records_only_what_is_asked():
   assert traj.status is None and traj.touching is None
   with pytest.raises(ValueError, match="record= takes names from"):
     jc.rollout(w, CFG, 3, record=("touch",))
+  # A list or one name works too (made a hashable tuple for the compiled rollout).
+  assert jc.rollout(w, CFG, 3, record=["touching"])[1].touching.shape == (3, N, 4)
+  assert jc.rollout(w, CFG, 3, record="sensed")[1].sensed.shape == (3, N)
 
 
 # --- The grid respects layers, sensors and one-way bodies --------------------------------

@@ -288,7 +288,6 @@ def make_step(config: Config):
   return jax.jit(step_fn)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "n_steps", "policy", "record"))
 def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | None = None, *,
             policy: Callable[[World, jax.Array], jax.Array] | None = None,
             record: Sequence[str] = ()) -> tuple[World, Trajectory]:
@@ -330,7 +329,7 @@ def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | No
     (3.0, (60, 2, 4))
   """
   _check_single(world, "rollout")
-  record = tuple(record)
+  record = (record,) if isinstance(record, str) else tuple(record)  # Hashable: static.
   unknown = [r for r in record if r not in RECORDABLE]
   if unknown:
     raise ValueError(f"rollout: record= takes names from {RECORDABLE}, got {unknown}")
@@ -343,6 +342,14 @@ def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | No
     raise ValueError(f"rollout: controls must have shape {(n_steps,) + world.pos.shape} "
                      f"or {world.pos.shape}, got {controls.shape}")
 
+  return _rollout(world, config, n_steps, controls, policy, record)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "n_steps", "policy", "record"))
+def _rollout(world: World, config: Config, n_steps: int, controls: jax.Array | None,
+             policy: Callable[[World, jax.Array], jax.Array] | None,
+             record: tuple[str, ...]) -> tuple[World, Trajectory]:
+  """`rollout` after its checks, jitted (config, n_steps, policy and record static)."""
   def accel_of(w, t, given):
     if policy is None:
       return given
