@@ -92,3 +92,77 @@ def test_status_summary_counts_worlds_per_message():
   summary = cli.status_summary(batch.replace(status=codes))
   assert summary == {status.MESSAGES[status.NON_FINITE]: 1, status.MESSAGES[status.FAST_BODY]: 2}
   assert cli.status_summary(batch) == {}
+
+
+# --- `jaxchain demo --gif` -----------------------------------------------------------------
+
+
+def _gif_frames(path):
+  from PIL import Image
+  with Image.open(path) as im:
+    frames, durations = [], []
+    for k in range(im.n_frames):
+      im.seek(k)
+      frames.append(np.asarray(im.convert("RGB")))
+      durations.append(im.info["duration"])
+  return np.stack(frames), durations
+
+
+def _has_colour(frame, rgb, tol=8):
+  return bool(np.any(np.all(np.abs(frame.astype(int) - rgb) <= tol, axis=-1)))
+
+
+def test_demo_gif_tiles_the_first_worlds(tmp_path, capsys):
+  path = tmp_path / "demo.gif"
+  # Depth 0, no converging loops, no friction: the smallest compile (the GIF is tested here).
+  assert cli.main(["demo", "--batch", "3", "--steps", "20", "--chunk", "10", "--no-progress",
+                   "--depth", "0", "--no-converge", "--friction", "0", "--gif", str(path),
+                   "--gif-worlds", "2", "--gif-size", "48x80", "--gif-every", "5"]) == 0
+  out = capsys.readouterr().out
+  assert "row pushed" in out and f"gif                   {path}: 2 worlds, 5 frames" in out
+  frames, durations = _gif_frames(path)
+  assert frames.shape == (5, 48, 2 * 80 + cli.GIF_BORDER, 3)  # The start and steps 5 to 20.
+  assert durations == [30, 40, 30, 30, 40]  # 30 fps in whole centiseconds.
+  palette = jaxchain.drawing.PALETTE
+  for tile in (frames[:, :, :80], frames[:, :, -80:]):
+    assert _has_colour(tile[0], palette.player) and _has_colour(tile[0], palette.immovable)
+    assert _has_colour(tile[0], palette.movable)
+  assert np.all(frames[:, :, 80:80 + cli.GIF_BORDER] == 0)  # The border between tiles.
+  assert not np.array_equal(frames[0], frames[-1])  # The player moved.
+
+
+def test_level_demo_gif(tmp_path, capsys):
+  path = tmp_path / "level.gif"
+  assert cli.main(["demo", "--level", "sokoban1", "--batch", "1", "--steps", "10", "--chunk",
+                   "10", "--no-progress", "--depth", "0", "--no-converge", "--friction", "0",
+                   "--gif", str(path), "--gif-every", "4", "--gif-size", "32x32",
+                   "--gif-fps", "25"]) == 0
+  assert "gif " in capsys.readouterr().out
+  frames, durations = _gif_frames(path)
+  assert frames.shape[1:] == (32, 32, 3) and len(frames) <= 4  # Steps 0, 4, 8, 10.
+  assert sum(durations) == 4 * 40  # Frames merged by Pillow keep their time.
+  palette = jaxchain.drawing.PALETTE
+  assert _has_colour(frames[0], palette.player) and _has_colour(frames[0], palette.movable)
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--gif-size", "0x10"], "argument --gif-size: both sides must be positive, got '0x10'"),
+    (["--gif-size", "big"], "argument --gif-size: expected HxW such as 96x160, got 'big'"),
+    (["--gif-fps", "60"], "argument --gif-fps: must be in (0, 50], got 60"),
+    (["--gif-worlds", "0"], "argument --gif-worlds: must be a positive integer, got 0"),
+    (["--gif", "no/such/dir/x.gif"], "--gif: no such directory: 'no/such/dir'"),
+])
+def test_bad_gif_flags_are_argparse_errors(flags, message, capsys):
+  with pytest.raises(SystemExit) as exit_info:
+    cli.main(["demo", "--no-progress", *flags])
+  assert exit_info.value.code == 2
+  err = capsys.readouterr().err
+  assert message in err and "Traceback" not in err
+
+
+def test_tile_lays_clips_out_in_a_grid():
+  clips = np.stack([np.full((2, 3, 4, 3), 10 * (i + 1), np.uint8) for i in range(3)])
+  grid = cli.tile(clips, border=1)
+  assert grid.shape == (2, 2 * 3 + 1, 2 * 4 + 1, 3)  # 2 columns, 2 rows, the last cell empty.
+  assert grid[0, 0, 0, 0] == 10 and grid[0, 0, -1, 0] == 20 and grid[0, -1, 0, 0] == 30
+  assert grid[0, -1, -1, 0] == 0 and grid[0, 3, 0, 0] == 0

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
+import os
 import sys
 import time
 
@@ -12,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from jaxchain import flags, levels, metrics, scenes, status
+from jaxchain import drawing, flags, levels, metrics, scenes, status
 from jaxchain.config import Config
 from jaxchain.stepping import rollout
 from jaxchain.world import stack
@@ -20,6 +22,30 @@ from jaxchain.world import stack
 # `--level`: the player's jump, an upward acceleration for one step when grounded
 # (about 7 units/s at 60 steps/s: 2.5 units high, enough for a ledge two cells up).
 JUMP = 420.0
+
+# `--gif`: the border between tiles, in pixels.
+GIF_BORDER = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class GifOptions:
+  """What `jaxchain demo --gif PATH` records.
+
+  Attributes:
+    path: the GIF file to write.
+    worlds: how many worlds (the first ones of the batch) to show, tiled in a grid
+      of `ceil(sqrt(worlds))` columns, `GIF_BORDER` pixels apart.
+    size: `(H, W)` of each tile in pixels.
+    every: record every `every`-th step (from the first step, and the last).
+    fps: frames per second of the GIF (at most 50).
+  """
+
+  path: str
+  worlds: int = 4
+  size: tuple[int, int] = (96, 160)
+  every: int = 2
+  fps: float = 30.0
+
 
 # Status bit -> its name in `jaxchain.status` (FAST_BODY, ...), for the summary.
 _BIT_NAMES = {bit: bit.name for bit in status.Status if bit}
@@ -60,6 +86,27 @@ def _nonnegative_float(text: str) -> float:
   return _finite_float(text, nonnegative=True)
 
 
+def _size(text: str) -> tuple[int, int]:
+  """`HxW` (e.g. `96x160`) as `(H, W)`, both positive."""
+  parts = text.lower().split("x")
+  try:
+    h, w = (int(part) for part in parts)
+  except ValueError:
+    raise argparse.ArgumentTypeError(f"expected HxW such as 96x160, got {text!r}") from None
+  if h < 1 or w < 1:
+    raise argparse.ArgumentTypeError(f"both sides must be positive, got {text!r}")
+  return h, w
+
+
+def _gif_fps(text: str) -> float:
+  value = _finite_float(text)
+  if not 0 < value <= drawing.MAX_GIF_FPS:
+    raise argparse.ArgumentTypeError(
+        f"must be in (0, {drawing.MAX_GIF_FPS:g}], got {value:g} (browsers play GIF delays "
+        "under 20 ms as 100 ms)")
+  return value
+
+
 def status_summary(world) -> dict[str, int]:
   """`{message: number of worlds}` for every status bit set in any world of the
   batch, each message once, in `jc.check` order (from `status.check`)."""
@@ -72,7 +119,7 @@ def status_summary(world) -> dict[str, int]:
 
 def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
          iterations: int, friction: float, push: float, progress: bool,
-         converge: bool = True, level: str | None = None) -> dict:
+         converge: bool = True, level: str | None = None, gif: GifOptions | None = None) -> dict:
   """Runs the platformer demo and returns the figures it prints.
 
   With `level` (a shipped level's name or a path, `jaxchain.levels.load`) it runs that
@@ -80,19 +127,24 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   pushed along +x by `push` and jumping whenever it is grounded (a closed-loop
   `rollout` policy).
 
+  With `gif` it also writes the rollout of the first `gif.worlds` worlds to a GIF: the
+  compiled chunk then also returns their trajectory (so the timed run includes
+  writing it, a few percent), and rendering and writing happen after the timing.
+  Without `gif` nothing extra is traced.
+
   Returns:
     The figures: timings, throughput, penetration and wall intrusion, whether every
     state is finite, and `status_messages`, `{message: number of worlds}` for every
     status bit set at the end (empty when all is well). For a level, the player's
     mean x travel and how many worlds end with a sensor triggered instead of the row
-    figures.
+    figures. With `gif`, also `gif_frames` (frames written) and `gif_bytes`.
   """
   chunk = min(chunk, steps)
   if steps % chunk:
     raise ValueError(f"--steps ({steps}) must be a multiple of --chunk ({chunk})")
   if level is not None:
     return _level_demo(levels.load(level), batch, steps, chunk, seed, depth, iterations,
-                       friction, push, progress, converge)
+                       friction, push, progress, converge, gif)
   rng = np.random.default_rng(seed)
   layouts = [scenes.platformer(rng) for _ in range(batch)]
   first = layouts[0]
@@ -106,7 +158,11 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   controls[:, first.player, 0] = push  # The player's input: a constant push to the right.
   controls = jnp.asarray(controls)
 
-  run = jax.jit(jax.vmap(lambda w, u: rollout(w, config, chunk, u)[0]))
+  if gif is None:
+    run = jax.jit(jax.vmap(lambda w, u: rollout(w, config, chunk, u)[0]))
+  else:
+    run = _recording(jax.vmap(lambda w, u: rollout(w, config, chunk, u, record=_RECORD)),
+                     min(gif.worlds, batch))
   print(f"jaxchain demo: {batch} worlds x {n} bodies, {steps} steps of {config.dt:.4f} s, "
         f"depth {config.depth}{' (converging)' if config.converge else ''}, iterations {config.iterations}, friction {friction:g}, "
         f"device {jax.devices()[0].device_kind}")
@@ -115,7 +171,10 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   compile_s = time.perf_counter() - t0
 
   start_row = np.asarray(worlds.pos[:, first.row, 0])
-  world, run_s = _run(lambda w: compiled(w, controls), worlds, steps, chunk, progress)
+  clips = []
+  call = lambda w: compiled(w, controls)
+  world, run_s = _run(call if gif is None else _keeping(call, clips), worlds, steps, chunk,
+                      progress)
   messages, finite, penetration = _health(world)
   with np.errstate(invalid="ignore", over="ignore"):
     row_right = np.asarray(world.pos[:, first.row, 0] + world.half[:, first.row, 0])
@@ -132,7 +191,67 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
         f"{at_wall}/{batch} rows against the wall")
   print(f"row intrusion into wall {intrusion:10.3g}")
   _print_status(messages, finite, batch)
+  if gif is not None:
+    figures.update(_write_gif(gif, worlds, clips, first.player))
   return figures
+
+
+# What a `--gif` run records per step beside the positions (drawn red, and brighter).
+_RECORD = ("crushed", "sensed")
+
+
+def _recording(run_batch, k: int):
+  """`jax.jit` of `run_batch(*args) -> (final, traj)`, keeping the trajectory of the
+  first `k` worlds only: `(final, traj[:k])`."""
+  def run(*args):
+    final, traj = run_batch(*args)
+    return final, jax.tree.map(lambda x: x[:k], traj)
+  return jax.jit(run)
+
+
+def _keeping(call, clips: list):
+  """`call(world) -> (world, piece)` as `world -> world`, appending each piece."""
+  def kept(world):
+    world, piece = call(world)
+    clips.append(piece)
+    return world
+  return kept
+
+
+def _write_gif(gif: GifOptions, worlds, clips: list, player: int) -> dict:
+  """Renders the recorded trajectory pieces (`clips`, each `[k, chunk, ...]`) of the
+  first worlds, tiles them and writes the GIF: `{"gif_frames", "gif_bytes"}`."""
+  k = clips[0].pos.shape[0]
+  start = jax.tree.map(lambda x: np.asarray(x)[:k], worlds)  # On the host: no op to compile.
+  # Frame 0 is the start; then every `gif.every`-th step, and the last.
+  first = dataclasses.replace(clips[0], **{name: getattr(start, name)[:, None] for name in
+                                          ("pos", "vel", *_RECORD)})
+  traj = jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), first, *clips)
+  steps = traj.pos.shape[1]
+  keep = np.unique(np.r_[np.arange(0, steps, gif.every), steps - 1])
+  traj = jax.tree.map(lambda x: x[:, keep], traj)
+  # One camera for every tile and frame: the extent of all of them.
+  bounds = drawing.bounds_of(start, jnp.asarray(traj.pos))
+  frames = np.asarray(drawing.render_trajectory(start, traj, gif.size, bounds, player=player))
+  grid = tile(frames, GIF_BORDER)
+  drawing.save_gif(grid, gif.path, fps=gif.fps)
+  size = os.path.getsize(gif.path)
+  print(f"gif                   {gif.path}: {k} world{'s' * (k > 1)}, {grid.shape[0]} frames "
+        f"of {grid.shape[2]}x{grid.shape[1]} px at {gif.fps:g} fps, {size / 1024:.0f} KiB")
+  return dict(gif_frames=grid.shape[0], gif_bytes=size)
+
+
+def tile(frames: np.ndarray, border: int = GIF_BORDER) -> np.ndarray:
+  """`[k, t, h, w, 3]` clips side by side: `[t, H, W, 3]`, a grid of `ceil(sqrt(k))`
+  columns with `border` pixels of black between tiles (empty cells black too)."""
+  k, t, h, w, _ = frames.shape
+  cols = math.ceil(math.sqrt(k))
+  rows = math.ceil(k / cols)
+  out = np.zeros((t, rows * (h + border) - border, cols * (w + border) - border, 3), np.uint8)
+  for i in range(k):
+    r, c = divmod(i, cols)
+    out[:, r * (h + border):r * (h + border) + h, c * (w + border):c * (w + border) + w] = frames[i]
+  return out
 
 
 def _run(call, world, steps: int, chunk: int, progress: bool):
@@ -147,6 +266,10 @@ def _run(call, world, steps: int, chunk: int, progress: bool):
   return world, time.perf_counter() - t0
 
 
+# One compiled function, not op-by-op dispatch (each op compiles on its own: seconds).
+_max_penetration = jax.jit(jax.vmap(metrics.max_penetration))
+
+
 def _health(world) -> tuple[dict[str, int], bool, float]:
   """Status messages, whether every state is finite, and the largest penetration."""
   codes = np.asarray(world.status)
@@ -154,7 +277,7 @@ def _health(world) -> tuple[dict[str, int], bool, float]:
                 np.all(np.isfinite(np.asarray(world.vel))) and
                 not np.any(codes & status.NON_FINITE))
   with np.errstate(invalid="ignore", over="ignore"):
-    penetration = float(np.max(jax.vmap(metrics.max_penetration)(world)))
+    penetration = float(np.max(_max_penetration(world)))
   return status_summary(world), finite, penetration
 
 
@@ -178,7 +301,7 @@ def _print_status(messages: dict[str, int], finite: bool, batch: int) -> None:
 
 
 def _level_demo(level, batch, steps, chunk, seed, depth, iterations, friction, push,
-                progress, converge) -> dict:
+                progress, converge, gif=None) -> dict:
   """`demo` on a level: copies with box masses from `seed`, the player pushed and
   jumping when grounded."""
   player = level.player
@@ -197,7 +320,11 @@ def _level_demo(level, batch, steps, chunk, seed, depth, iterations, friction, p
     up = jnp.where(flags.grounded(world)[player], JUMP, 0.0)
     return jnp.zeros_like(world.pos).at[player].set(jnp.stack([jnp.asarray(push, up.dtype), up]))
 
-  run = jax.jit(jax.vmap(lambda w: rollout(w, config, chunk, policy=policy)[0]))
+  if gif is None:
+    run = jax.jit(jax.vmap(lambda w: rollout(w, config, chunk, policy=policy)[0]))
+  else:
+    run = _recording(jax.vmap(lambda w: rollout(w, config, chunk, policy=policy, record=_RECORD)),
+                     min(gif.worlds, batch))
   print(f"jaxchain demo --level {level.name}: {batch} worlds x {n} bodies, {steps} steps of "
         f"{config.dt:.4f} s, depth {config.depth}{' (converging)' if config.converge else ''}, "
         f"iterations {config.iterations}, friction {friction:g}, one-way "
@@ -206,7 +333,9 @@ def _level_demo(level, batch, steps, chunk, seed, depth, iterations, friction, p
   t0 = time.perf_counter()
   compiled = run.lower(worlds).compile()
   compile_s = time.perf_counter() - t0
-  world, run_s = _run(compiled, worlds, steps, chunk, progress)
+  clips = []
+  world, run_s = _run(compiled if gif is None else _keeping(compiled, clips), worlds, steps,
+                      chunk, progress)
   messages, finite, penetration = _health(world)
   travel = np.asarray(world.pos[:, player, 0] - worlds.pos[:, player, 0])
   triggered = int(np.sum(np.any(np.asarray(world.sensed), axis=-1)))
@@ -219,6 +348,8 @@ def _level_demo(level, batch, steps, chunk, seed, depth, iterations, friction, p
   print(f"player moved          {figures['player_moved_mean']:8.3f} units along x on average")
   print(f"sensors triggered     {triggered}/{batch} worlds at the end")
   _print_status(messages, finite, batch)
+  if gif is not None:
+    figures.update(_write_gif(gif, worlds, clips, player))
   return figures
 
 
@@ -245,6 +376,18 @@ def main(argv=None) -> int:
                  help="run a level instead of the built-in scene: a shipped level "
                       f"({', '.join(levels.names())}) or a .txt/.xsb/.tmj/.json file; the "
                       "player is pushed by --push and jumps when grounded")
+  p.add_argument("--gif", default=None, metavar="PATH",
+                 help="also write the rollout of the first --gif-worlds worlds to an animated "
+                      "GIF (tiled in a grid; works with --level)")
+  p.add_argument("--gif-worlds", type=_positive_int, default=4,
+                 help="worlds in the GIF, the first of the batch (default 4)")
+  p.add_argument("--gif-size", type=_size, default=(96, 160), metavar="HxW",
+                 help="pixels of each world's tile (default 96x160)")
+  p.add_argument("--gif-every", type=_positive_int, default=2,
+                 help="one frame every this many steps (default 2: 30 frames per simulated s)")
+  p.add_argument("--gif-fps", type=_gif_fps, default=30.0,
+                 help="frames per second of the GIF, at most 50 (default 30: real time "
+                      "with --gif-every 2)")
   p.add_argument("--no-progress", action="store_true", help="no progress bar")
   args = parser.parse_args(argv)
   if args.command == "demo":
@@ -256,9 +399,14 @@ def main(argv=None) -> int:
         levels.load(args.level)
       except (ValueError, OSError) as e:
         p.error(f"--level: {e}")
+    gif = None if args.gif is None else GifOptions(
+        args.gif, worlds=args.gif_worlds, size=args.gif_size, every=args.gif_every,
+        fps=args.gif_fps)
+    if gif is not None and not os.path.isdir(os.path.dirname(os.path.abspath(gif.path))):
+      p.error(f"--gif: no such directory: {os.path.dirname(gif.path)!r}")
     demo(args.batch, args.steps, args.chunk, args.seed, args.depth, args.iterations,
          args.friction, args.push, progress=not args.no_progress, converge=args.converge,
-         level=args.level)
+         level=args.level, gif=gif)
   return 0
 
 
