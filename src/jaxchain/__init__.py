@@ -1,6 +1,6 @@
 """jaxchain: batched, differentiable 2D box collisions with collision chaining."""
 
-from jaxchain import broadphase, drawing, levels, metrics, reference, scenes, sizing, status
+from jaxchain import broadphase, drawing, env, levels, metrics, reference, scenes, sizing, status
 from jaxchain.broadphase import GridSpec
 from jaxchain.config import Config
 from jaxchain.drawing import render, render_trajectory, save_gif
@@ -11,7 +11,7 @@ from jaxchain.stepping import Trajectory, make_step, resolve, rollout, step
 from jaxchain.world import World, stack
 
 __all__ = [
-    "Candidates", "Config", "GridSpec", "Trajectory", "World", "blocked", "broadphase", "check", "drawing",
+    "Candidates", "Config", "GridSpec", "Trajectory", "World", "blocked", "broadphase", "check", "drawing", "env",
     "grounded", "levels", "make_step", "metrics", "reference", "render", "render_trajectory", "resolve", "rollout", "save_gif", "scenes", "sizing", "stack", "status", "step",
 ]
 __version__ = "0.1.0"
