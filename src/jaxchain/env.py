@@ -50,6 +50,11 @@ Tasks (`TASKS`):
   player-flag Manhattan distance (0 by default), minus `step_cost`. Ends on the
   flag, a hazard or crushing (terminated), or at `max_steps` (truncated).
 
+Cost: a step is one `jaxchain.step` on the env's 13-20 body slots (dense pairs)
+plus the reset it may need; on 2 CPU cores that is about 1e4-2e4 env-steps/s, with
+little gain from batching (CPU-bound per world; `benchmarks/results/env_throughput.md`),
+and compiling a vmapped step takes 5-15 s.
+
 Every task also ends (terminated, reward 0) when the world goes non-finite
 (`status.NON_FINITE`), so one broken world resets instead of poisoning a batch.
 
