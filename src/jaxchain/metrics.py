@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxchain import geometry
+from jaxchain import flags, geometry
 from jaxchain.world import World
 
 
@@ -19,11 +19,8 @@ def penetration(world: World) -> jax.Array:
   depth = jnp.maximum(jnp.minimum(o[..., 0], o[..., 1]), 0.0)
   pair = world.active[:, None] & world.active[None, :] & ~jnp.eye(pos.shape[0], dtype=bool)
   pair &= world.movable[:, None] | world.movable[None, :]
-  solid = world.active & ~world.sensor & ~world.one_way
-  pair &= solid[:, None] & solid[None, :]
-  zero = jnp.zeros((), world.category.dtype)
-  pair &= ((world.category[:, None] & world.mask[None, :]) != zero) & (
-      (world.category[None, :] & world.mask[:, None]) != zero)
+  pair &= ~world.one_way[:, None] & ~world.one_way[None, :]
+  pair = flags.admit(geometry.Candidates(None, pair), world, layers=True, sensors=True).mask
   return jnp.where(pair, depth, 0.0)
 
 

@@ -211,11 +211,9 @@ def _substep(world: World, config: Config, sub_dt: float, accel: jax.Array | Non
   code = jnp.where(_too_fast(world, vel, sub_dt), status.FAST_BODY, 0)
   predicted = world.pos + jnp.where(world.active[:, None], vel * sub_dt, 0.0)
   pos, vel, found, crushed, touching = _passes(world, predicted, config, start=world.pos, vel=vel)
-  sensed, seen = _sensed(world, pos, config)
-  code = code | found | seen | _finite_code(world, pos, vel) | _crushed_code(crushed)
+  code = code | found | _finite_code(world, pos, vel) | _crushed_code(crushed)
   return dataclasses.replace(world, pos=pos, vel=vel, crushed=world.crushed | crushed,
-                             touching=world.touching | touching.T, sensed=sensed,
-                             status=world.status | code)
+                             touching=world.touching | touching.T, status=world.status | code)
 
 
 def _too_fast(world: World, vel: jax.Array, sub_dt: float) -> jax.Array:
@@ -241,8 +239,13 @@ def _step_body(world: World, config: Config, accel: jax.Array | None) -> World:
                               touching=jnp.zeros_like(world.touching),
                               status=world.status | _switched_off(world, config))
   if config.substeps == 1:
-    return _substep(world, config, sub_dt, accel)
-  return lax.fori_loop(0, config.substeps, lambda _, w: _substep(w, config, sub_dt, accel), world)
+    world = _substep(world, config, sub_dt, accel)
+  else:
+    world = lax.fori_loop(0, config.substeps, lambda _, w: _substep(w, config, sub_dt, accel),
+                          world)
+  # Sensors report the end of the step: once, after the last substep.
+  sensed, seen = _sensed(world, world.pos, config)
+  return dataclasses.replace(world, sensed=sensed, status=world.status | seen)
 
 
 @functools.partial(jax.jit, static_argnames="config")
