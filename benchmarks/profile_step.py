@@ -60,8 +60,8 @@ def stages(cfg: jc.Config) -> dict:
 
   def passes(config, with_vel):
     def fn(w):
-      pos, vel, _, _ = stepping._passes(w, w.pos, config, start=w.pos,
-                                           vel=w.vel if with_vel else None)
+      pos, vel = stepping._passes(w, w.pos, config, start=w.pos,
+                                  vel=w.vel if with_vel else None)[:2]
       return pos if vel is None else (pos, vel)  # Return what a stage makes: no dead code.
     return fn
 
