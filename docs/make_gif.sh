@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Makes the README's GIFs (run from the repository root, after `pip install -e .`).
+# Makes the GIFs of README.md and docs/ (run from the repository root, after `pip install -e .`).
 # docs/demo.gif: the built-in demo scene, its first 4 worlds (box masses differ per
 # world) tiled 2 x 2, 3 simulated seconds in real time (a frame every 2 steps at 30 fps).
 # docs/level.gif: the shipped level platformer1, one world, 5 simulated seconds.

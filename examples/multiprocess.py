@@ -14,8 +14,7 @@ failure or if anything takes longer than `--timeout` seconds.
     python examples/multiprocess.py --processes 2 --worlds 1024 --steps 50 --scene room64
 
 Across machines the same script runs once per host with `--process-id`, the same
-`--coordinator host:port` (process 0's address) and `--processes`; see the README
-section "Scale-out".
+`--coordinator host:port` (process 0's address) and `--processes`; see docs/scaleout.md.
 
 The mesh is `jax.make_mesh((devices,), ("worlds",))`, explicit axes by default
 (`--axis-type auto` for `AxisType.Auto`); the plain `jax.vmap` of `jc.rollout` runs

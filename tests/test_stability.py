@@ -26,7 +26,7 @@ def penetrations(world, traj):
 
 
 def assert_sane(world, final, traj, pen_bound=None, g=G, dt=1 / 60):
-  """The guarantees every case must hold (README, "Limits and guarantees"):
+  """The guarantees every case must hold (docs/physics.md, "Limits and guarantees"):
   finite state, immovable bodies at rest exactly still, penetration after every
   step at most `pen_bound` (default: the largest distance a body travels in one
   step, the bound for contacts a pass creates), and energy that never grows except

@@ -38,7 +38,7 @@ class World:
     gravity: `[2]` float array, this world's gravity acceleration on movable
       bodies (`[b, 2]` for a batch). Read only when `Config.gravity` is on.
     one_way: `[n]` bool array, jump-through bodies: a one-way body blocks only
-      bodies that come down onto it from above (README, "One-way platforms"). Read
+      bodies that come down onto it from above (docs/toolkit.md, "One-way"). Read
       only when `Config.one_way` is on.
     sensor: `[n]` bool array, triggers: a sensor never pushes and is never pushed;
       `sensed` says whether something overlaps it. Read only when `Config.sensors`
