@@ -2,9 +2,11 @@
 
 The pages use links relative to docs/ so that they also work on GitHub. MkDocs only knows
 the files inside docs/, and `mkdocs build --strict` fails on a link it cannot resolve. This
-hook adds every repository file that some page links to with `../` to the site, copied as
-is under `repo/` (a results table is served as its Markdown text, a plot as an image). A
-link to a file that does not exist stays unresolved, so `--strict` still fails on it.
+hook adds every repository file that a page links to with a `../` path to the site, under
+`repo/`: a Markdown file (a results table) becomes a page of its own, outside the
+navigation, and its own links are followed the same way; any other file (a plot) is
+copied as is. A link to a file that does not exist is left alone, so `--strict` still
+fails on it.
 """
 
 import pathlib
@@ -13,11 +15,11 @@ import re
 
 from mkdocs.structure.files import File, InclusionLevel
 
-_LINK = re.compile(r"\]\((\.\./[^)\s#]+)")
+_LINK = re.compile(r"\]\(([^)\s#:]+)")
 
 
 class _RepoFile(File):
-  """A repository file outside docs/, copied verbatim (never rendered as a page)."""
+  """A repository file outside docs/ that is copied verbatim."""
 
   def is_documentation_page(self) -> bool:
     return False
@@ -29,16 +31,23 @@ class _RepoFile(File):
 def on_files(files, config):
   docs = pathlib.Path(config.docs_dir).resolve()
   repo = docs.parent
-  for page in docs.rglob("*.md"):
-    rel_dir = page.parent.relative_to(docs).as_posix()
+  todo = [(page.relative_to(docs).as_posix(), page) for page in docs.rglob("*.md")]
+  while todo:
+    src_uri, page = todo.pop()
     for target in _LINK.findall(page.read_text(encoding="utf-8")):
-      src_uri = posixpath.normpath(posixpath.join(rel_dir, target))
-      path = (docs / src_uri).resolve()
-      if not src_uri.startswith("../") or not path.is_file() or src_uri in files:
+      uri = posixpath.normpath(posixpath.join(posixpath.dirname(src_uri), target))
+      path = (docs / uri).resolve()
+      if not uri.startswith("../") or uri in files or not path.is_file():
         continue
       if repo not in path.parents or ".git" in path.relative_to(repo).parts:
         continue
-      files.append(_RepoFile(src_uri, str(docs), config.site_dir, config.use_directory_urls,
-                             dest_uri="repo/" + path.relative_to(repo).as_posix(),
-                             inclusion=InclusionLevel.INCLUDED))
+      dest = "repo/" + path.relative_to(repo).as_posix()
+      if path.suffix == ".md":
+        dest = dest[:-len(".md")] + ("/index.html" if config.use_directory_urls else ".html")
+        files.append(File(uri, str(docs), config.site_dir, config.use_directory_urls,
+                          dest_uri=dest, inclusion=InclusionLevel.NOT_IN_NAV))
+        todo.append((uri, path))
+      else:
+        files.append(_RepoFile(uri, str(docs), config.site_dir, config.use_directory_urls,
+                               dest_uri=dest, inclusion=InclusionLevel.INCLUDED))
   return files

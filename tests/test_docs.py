@@ -20,4 +20,6 @@ def test_mkdocs_build_strict(tmp_path):
     assert (site / page).is_file(), page
   api = (site / "api" / "index.html").read_text()
   assert "jaxchain.World" in api and "jaxchain.rollout" in api  # mkdocstrings rendered them
-  assert (site / "repo" / "benchmarks" / "results" / "scaling.png").is_file()  # docs/hooks.py
+  # docs/hooks.py: repository files the pages link to with `../` are in the site too.
+  assert (site / "repo" / "benchmarks" / "results" / "scaling.png").is_file()
+  assert (site / "repo" / "benchmarks" / "results" / "scaling" / "index.html").is_file()
