@@ -14,8 +14,17 @@ from jaxchain import cli, status
 
 
 def test_demo_figures():
-  figures = cli.demo(batch=3, steps=420, chunk=210, seed=1, depth=None, iterations=1,
+  # 420 steps in chunks of 160: two calls of 160, then one of 100 (a second program).
+  figures = cli.demo(batch=3, steps=420, chunk=160, seed=1, depth=None, iterations=1,
                      friction=0.3, push=20.0, progress=False)
+  assert figures["chunks"] == [160, 160, 100]
+  # The same answers as one rollout of 420 steps, to the bit.
+  whole = cli.demo(batch=3, steps=420, chunk=420, seed=1, depth=None, iterations=1,
+                   friction=0.3, push=20.0, progress=False)
+  assert whole["chunks"] == [420]
+  for name in ("pos", "vel", "status", "crushed", "touching"):
+    np.testing.assert_array_equal(getattr(figures["final_world"], name),
+                                  getattr(whole["final_world"], name), err_msg=name)
   assert figures["finite"]
   assert figures["worlds_at_wall"] == 3
   assert figures["wall_intrusion"] < 1e-4
@@ -39,7 +48,7 @@ def test_console_script_runs_and_rejects_bad_flags():
   assert bad.returncode == 2 and "must be a positive integer" in bad.stderr
 
 
-@pytest.mark.parametrize("name", ["world", "config", "stepping", "status", "reference"])
+@pytest.mark.parametrize("name", ["world", "config", "stepping", "status", "reference", "cli"])
 def test_docstring_examples(name):
   module = importlib.import_module(f"jaxchain.{name}")
   result = doctest.testmod(module, extraglobs={"jc": jaxchain}, optionflags=doctest.ELLIPSIS)
@@ -59,7 +68,8 @@ def test_docstring_examples(name):
     (["--steps", "-3"], "argument --steps: must be a positive integer, got -3"),
     (["--iterations", "0"], "argument --iterations: must be a positive integer"),
     (["--seed", "-1"], "argument --seed: must be an integer >= 0, got -1"),
-    (["--steps", "10", "--chunk", "4"], "--steps (10) must be a multiple of --chunk (4)"),
+    (["--steps", "0"], "argument --steps: must be a positive integer, got 0"),
+    (["--chunk", "0"], "argument --chunk: must be a positive integer, got 0"),
 ])
 def test_bad_flags_are_argparse_errors(flags, message, capsys):
   with pytest.raises(SystemExit) as exit_info:
@@ -83,6 +93,23 @@ def test_demo_reports_every_status_bit_and_never_claims_all_is_well(capsys):
   assert "status: ok" not in out and "all states finite     True" not in out
   if status.MESSAGES[status.NON_FINITE] in figures["status_messages"]:
     assert not figures["finite"] and "all states finite     False" in out
+
+
+@pytest.mark.parametrize("steps, chunk, lengths", [
+    (600, 50, [50] * 12), (60, 50, [50, 10]), (1, 50, [1]), (7, 7, [7]), (7, 1, [1] * 7),
+    (10, 4, [4, 4, 2]), (49, 50, [49]), (101, 50, [50, 50, 1]),
+])
+def test_chunk_lengths_cover_any_step_count(steps, chunk, lengths):
+  assert cli.chunk_lengths(steps, chunk) == lengths
+
+
+@pytest.mark.parametrize("steps, chunk", [(0, 50), (-1, 50), (10, 0)])
+def test_chunk_lengths_reject_nonpositive(steps, chunk):
+  with pytest.raises(ValueError, match="must be at least 1"):
+    cli.chunk_lengths(steps, chunk)
+  with pytest.raises(ValueError, match="must be at least 1"):  # Before anything compiles.
+    cli.demo(batch=1, steps=steps, chunk=chunk, seed=0, depth=None, iterations=1,
+             friction=0.3, push=20.0, progress=False)
 
 
 def test_status_summary_counts_worlds_per_message():
@@ -133,8 +160,9 @@ def test_demo_gif_tiles_the_first_worlds(tmp_path, capsys):
 
 def test_level_demo_gif(tmp_path, capsys):
   path = tmp_path / "level.gif"
+  # Chunks of 4, 4 and 2 steps: the remainder's program records its frames too.
   assert cli.main(["demo", "--level", "sokoban1", "--batch", "1", "--steps", "10", "--chunk",
-                   "10", "--no-progress", "--depth", "0", "--no-converge", "--friction", "0",
+                   "4", "--no-progress", "--depth", "0", "--no-converge", "--friction", "0",
                    "--gif", str(path), "--gif-every", "4", "--gif-size", "32x32",
                    "--gif-fps", "25"]) == 0
   assert "gif " in capsys.readouterr().out

@@ -137,13 +137,16 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
     state is finite, and `status_messages`, `{message: number of worlds}` for every
     status bit set at the end (empty when all is well). For a level, the player's
     mean x travel and how many worlds end with a sensor triggered instead of the row
-    figures. With `gif`, also `gif_frames` (frames written) and `gif_bytes`.
+    figures. With `gif`, also `gif_frames` (frames written) and `gif_bytes`. And, not
+    printed, `final_world` (the batch after the last step) and `chunks` (the steps of
+    each compiled call, `chunk_lengths(steps, chunk)`).
+
+  Raises:
+    ValueError: if `steps` or `chunk` is less than 1.
   """
-  chunk = min(chunk, steps)
-  if steps % chunk:
-    raise ValueError(f"--steps ({steps}) must be a multiple of --chunk ({chunk})")
+  lengths = chunk_lengths(steps, chunk)
   if level is not None:
-    return _level_demo(levels.load(level), batch, steps, chunk, seed, depth, iterations,
+    return _level_demo(levels.load(level), batch, lengths, seed, depth, iterations,
                        friction, push, progress, converge, gif)
   rng = np.random.default_rng(seed)
   layouts = [scenes.platformer(rng) for _ in range(batch)]
@@ -158,23 +161,23 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   controls[:, first.player, 0] = push  # The player's input: a constant push to the right.
   controls = jnp.asarray(controls)
 
-  if gif is None:
-    run = jax.jit(jax.vmap(lambda w, u: rollout(w, config, chunk, u)[0]))
-  else:
-    run = _recording(jax.vmap(lambda w, u: rollout(w, config, chunk, u, record=_RECORD)),
-                     min(gif.worlds, batch))
+  def make_run(length):
+    if gif is None:
+      return jax.jit(jax.vmap(lambda w, u: rollout(w, config, length, u)[0]))
+    return _recording(jax.vmap(lambda w, u: rollout(w, config, length, u, record=_RECORD)),
+                      min(gif.worlds, batch))
+
   print(f"jaxchain demo: {batch} worlds x {n} bodies, {steps} steps of {config.dt:.4f} s, "
         f"depth {config.depth}{' (converging)' if config.converge else ''}, iterations {config.iterations}, friction {friction:g}, "
         f"device {jax.devices()[0].device_kind}")
-  t0 = time.perf_counter()
-  compiled = run.lower(worlds, controls).compile()
-  compile_s = time.perf_counter() - t0
+  compiled, compile_s = _compile(make_run, lengths, worlds, controls)
 
   start_row = np.asarray(worlds.pos[:, first.row, 0])
   clips = []
-  call = lambda w: compiled(w, controls)
-  world, run_s = _run(call if gif is None else _keeping(call, clips), worlds, steps, chunk,
-                      progress)
+  calls = {k: (lambda w, fn=fn: fn(w, controls)) for k, fn in compiled.items()}
+  if gif is not None:
+    calls = {k: _keeping(call, clips) for k, call in calls.items()}
+  world, run_s = _run(calls, worlds, lengths, progress)
   messages, finite, penetration = _health(world)
   with np.errstate(invalid="ignore", over="ignore"):
     row_right = np.asarray(world.pos[:, first.row, 0] + world.half[:, first.row, 0])
@@ -185,7 +188,7 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
       compile_s=compile_s, run_s=run_s, world_steps_per_s=batch * steps / run_s,
       body_steps_per_s=batch * steps * n / run_s, max_penetration=penetration,
       wall_intrusion=intrusion, row_moved_mean=float(np.mean(moved)), worlds_at_wall=at_wall,
-      finite=finite, status_messages=messages)
+      finite=finite, status_messages=messages, final_world=world, chunks=lengths)
   _print_timing(figures)
   print(f"row pushed            {figures['row_moved_mean']:8.3f} units on average; "
         f"{at_wall}/{batch} rows against the wall")
@@ -254,15 +257,46 @@ def tile(frames: np.ndarray, border: int = GIF_BORDER) -> np.ndarray:
   return out
 
 
-def _run(call, world, steps: int, chunk: int, progress: bool):
-  """`steps // chunk` calls of the compiled `call` from `world`, with a progress bar:
+def chunk_lengths(steps: int, chunk: int) -> list[int]:
+  """The steps of each compiled call for a run of `steps` steps in chunks of `chunk`.
+
+  `steps // chunk` calls of `chunk` steps, then one of the remainder if `chunk` does not
+  divide `steps` (a second program, compiled only then). A chunk longer than the run is
+  the run. Chunked or not, the answers are those of one rollout of `steps` steps
+  (`tests/test_cli.py` checks it).
+
+  Examples:
+    >>> chunk_lengths(600, 50) == [50] * 12
+    True
+    >>> chunk_lengths(60, 50), chunk_lengths(7, 50)
+    ([50, 10], [7])
+
+  Raises:
+    ValueError: if `steps` or `chunk` is less than 1.
+  """
+  if steps < 1 or chunk < 1:
+    raise ValueError(f"steps and chunk must be at least 1, got steps={steps}, chunk={chunk}")
+  chunk = min(chunk, steps)
+  return [chunk] * (steps // chunk) + ([steps % chunk] if steps % chunk else [])
+
+
+def _compile(make_run, lengths: list[int], *args) -> tuple[dict, float]:
+  """`({length: compiled call}, seconds)`: `make_run(length)` compiled ahead of time
+  for each distinct chunk length (one, or two with a remainder), compile time summed."""
+  t0 = time.perf_counter()
+  compiled = {k: make_run(k).lower(*args).compile() for k in dict.fromkeys(lengths)}
+  return compiled, time.perf_counter() - t0
+
+
+def _run(calls: dict, world, lengths: list[int], progress: bool):
+  """`calls[length]` in turn for each chunk length, from `world`, with a progress bar:
   the final world and the run time."""
   t0 = time.perf_counter()
-  with tqdm(total=steps, unit="step", disable=not progress, file=sys.stderr) as bar:
-    for _ in range(steps // chunk):
-      world = call(world)
+  with tqdm(total=sum(lengths), unit="step", disable=not progress, file=sys.stderr) as bar:
+    for length in lengths:
+      world = calls[length](world)
       jax.block_until_ready(world)
-      bar.update(chunk)
+      bar.update(length)
   return world, time.perf_counter() - t0
 
 
@@ -282,7 +316,10 @@ def _health(world) -> tuple[dict[str, int], bool, float]:
 
 
 def _print_timing(figures: dict) -> None:
-  print(f"compile time          {figures['compile_s']:8.2f} s")
+  sizes = list(dict.fromkeys(figures["chunks"]))
+  programs = "" if len(sizes) == 1 else (
+      f" ({len(sizes)} programs: chunks of {' and '.join(map(str, sizes))} steps)")
+  print(f"compile time          {figures['compile_s']:8.2f} s{programs}")
   print(f"run time              {figures['run_s']:8.2f} s")
   print(f"world-steps/s         {figures['world_steps_per_s']:12.4g}")
   print(f"body-steps/s          {figures['body_steps_per_s']:12.4g}")
@@ -300,7 +337,7 @@ def _print_status(messages: dict[str, int], finite: bool, batch: int) -> None:
     print(f"all states finite     {finite}")
 
 
-def _level_demo(level, batch, steps, chunk, seed, depth, iterations, friction, push,
+def _level_demo(level, batch, lengths, seed, depth, iterations, friction, push,
                 progress, converge, gif=None) -> dict:
   """`demo` on a level: copies with box masses from `seed`, the player pushed and
   jumping when grounded."""
@@ -314,28 +351,28 @@ def _level_demo(level, batch, steps, chunk, seed, depth, iterations, friction, p
     overrides["depth"] = depth
   config = Config.for_world(worlds, **overrides)
   n = worlds.num_bodies
+  steps = sum(lengths)
 
   def policy(world, t):  # Push along +x; jump when standing on something.
     del t
     up = jnp.where(flags.grounded(world)[player], JUMP, 0.0)
     return jnp.zeros_like(world.pos).at[player].set(jnp.stack([jnp.asarray(push, up.dtype), up]))
 
-  if gif is None:
-    run = jax.jit(jax.vmap(lambda w: rollout(w, config, chunk, policy=policy)[0]))
-  else:
-    run = _recording(jax.vmap(lambda w: rollout(w, config, chunk, policy=policy, record=_RECORD)),
-                     min(gif.worlds, batch))
+  def make_run(length):
+    if gif is None:
+      return jax.jit(jax.vmap(lambda w: rollout(w, config, length, policy=policy)[0]))
+    return _recording(jax.vmap(lambda w: rollout(w, config, length, policy=policy,
+                                                 record=_RECORD)), min(gif.worlds, batch))
+
   print(f"jaxchain demo --level {level.name}: {batch} worlds x {n} bodies, {steps} steps of "
         f"{config.dt:.4f} s, depth {config.depth}{' (converging)' if config.converge else ''}, "
         f"iterations {config.iterations}, friction {friction:g}, one-way "
         f"{'on' if config.one_way else 'off'}, sensors {'on' if config.sensors else 'off'}, "
         f"device {jax.devices()[0].device_kind}")
-  t0 = time.perf_counter()
-  compiled = run.lower(worlds).compile()
-  compile_s = time.perf_counter() - t0
+  compiled, compile_s = _compile(make_run, lengths, worlds)
   clips = []
-  world, run_s = _run(compiled if gif is None else _keeping(compiled, clips), worlds, steps,
-                      chunk, progress)
+  calls = compiled if gif is None else {k: _keeping(fn, clips) for k, fn in compiled.items()}
+  world, run_s = _run(calls, worlds, lengths, progress)
   messages, finite, penetration = _health(world)
   travel = np.asarray(world.pos[:, player, 0] - worlds.pos[:, player, 0])
   triggered = int(np.sum(np.any(np.asarray(world.sensed), axis=-1)))
@@ -343,7 +380,7 @@ def _level_demo(level, batch, steps, chunk, seed, depth, iterations, friction, p
       compile_s=compile_s, run_s=run_s, world_steps_per_s=batch * steps / run_s,
       body_steps_per_s=batch * steps * n / run_s, max_penetration=penetration,
       player_moved_mean=float(np.mean(travel)), worlds_sensed=triggered, finite=finite,
-      status_messages=messages)
+      status_messages=messages, final_world=world, chunks=lengths)
   _print_timing(figures)
   print(f"player moved          {figures['player_moved_mean']:8.3f} units along x on average")
   print(f"sensors triggered     {triggered}/{batch} worlds at the end")
@@ -360,7 +397,8 @@ def main(argv=None) -> int:
   p.add_argument("--batch", type=_positive_int, default=1024, help="worlds in parallel (default 1024)")
   p.add_argument("--steps", type=_positive_int, default=600, help="time steps of 1/60 s (default 600)")
   p.add_argument("--chunk", type=_positive_int, default=50,
-                 help="steps per compiled call; must divide --steps if smaller (default 50)")
+                 help="steps per compiled call (default 50); if it does not divide --steps, "
+                      "a last, shorter call runs the rest (compiled once more)")
   p.add_argument("--seed", type=_nonnegative_int, default=0, help="seed for the box masses (default 0)")
   p.add_argument("--depth", type=_nonnegative_int, default=None,
                  help="chain depth K, 0 for pairwise Jacobi (default: from the scene)")
@@ -391,9 +429,6 @@ def main(argv=None) -> int:
   p.add_argument("--no-progress", action="store_true", help="no progress bar")
   args = parser.parse_args(argv)
   if args.command == "demo":
-    chunk = min(args.chunk, args.steps)
-    if args.steps % chunk:
-      p.error(f"--steps ({args.steps}) must be a multiple of --chunk ({chunk})")
     if args.level is not None:
       try:
         levels.load(args.level)
