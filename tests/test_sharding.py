@@ -5,7 +5,8 @@ process keeps its one device; here each result is compared with the same batch s
 unsharded on that one device, and must be bit-identical (`np.array_equal`).
 
 The mesh is the one `jax.make_mesh((2,), ("worlds",))` builds by default (explicit axes,
-`AxisType.Explicit`) and one with `AxisType.Auto`. Under explicit axes JAX's batching
+`AxisType.Explicit`), under `jax.set_mesh` and without it (the batch's type carries the
+mesh), and one with `AxisType.Auto`. Under explicit axes JAX's batching
 rules for `select_n`, for gathers whose operand is not batched and for loop carries that
 start unbatched reject the sharded batch axis: the step runs its body in
 `sharding.in_auto_axes`, and `Config` is a pytree without leaves, so
@@ -72,26 +73,31 @@ SHARDED = CASES + textwrap.dedent("""
     from jax.sharding import AxisType, NamedSharding, PartitionSpec as P
     jax.config.update("jax_numpy_rank_promotion", "raise")
     jax.config.update("jax_numpy_dtype_promotion", "strict")
-    kind, out_path = sys.argv[1], sys.argv[2]
+    import contextlib
+    run_kinds, out_path = sys.argv[1].split(","), sys.argv[2]
     KINDS = json.loads(sys.argv[3])
     assert jax.device_count() == 2, jax.devices()
-    types = (AxisType.Explicit,) if kind == "explicit" else (AxisType.Auto,)
-    mesh = jax.make_mesh((2,), ("worlds",), axis_types=None if kind == "explicit" else types)
-    assert mesh.axis_types == types, mesh.axis_types  # make_mesh's default is explicit.
     report, arrays = {}, {}
-    with jax.set_mesh(mesh):
-      for name, (fn, worlds, push) in cases().items():
-        if name not in KINDS[kind]:
-          continue
-        put = lambda x: jax.device_put(x, NamedSharding(mesh, P("worlds")))
-        try:
-          out = fn(jax.tree.map(put, worlds), put(push))
-          shards = out.pos.addressable_shards
-          report[name] = dict(ok=True, devices=len(out.pos.sharding.device_set),
-                              rows=[s.data.shape[0] for s in shards])
-          arrays.update({f"{name}/{k}": v for k, v in leaves(out).items()})
-        except Exception as e:  # Reported to the test, which shows it.
-          report[name] = dict(ok=False, error=f"{type(e).__name__}: {str(e)[:400]}")
+    for kind in run_kinds:
+      # "unset": the explicit mesh make_mesh builds, but no jax.set_mesh around the call
+      # (the batch's type alone carries the mesh).
+      types = (AxisType.Auto,) if kind == "auto" else (AxisType.Explicit,)
+      mesh = jax.make_mesh((2,), ("worlds",), axis_types=None if kind != "auto" else types)
+      assert mesh.axis_types == types, mesh.axis_types  # make_mesh's default is explicit.
+      context = contextlib.nullcontext() if kind == "unset" else jax.set_mesh(mesh)
+      with context:
+        for name, (fn, worlds, push) in cases().items():
+          if name not in KINDS[kind]:
+            continue
+          put = lambda x: jax.device_put(x, NamedSharding(mesh, P("worlds")))
+          try:
+            out = fn(jax.tree.map(put, worlds), put(push))
+            shards = out.pos.addressable_shards
+            report[f"{kind}/{name}"] = dict(ok=True, devices=len(out.pos.sharding.device_set),
+                                            rows=[s.data.shape[0] for s in shards])
+            arrays.update({f"{kind}/{name}/{k}": v for k, v in leaves(out).items()})
+          except Exception as e:  # Reported to the test, which shows it.
+            report[f"{kind}/{name}"] = dict(ok=False, error=f"{type(e).__name__}: {str(e)[:400]}")
     np.savez(out_path, **arrays)
     print("REPORT " + json.dumps(report))
 """)
@@ -111,15 +117,15 @@ def sharded(tmp_path_factory):
   while they compile (`_reference`), so the module costs about one subprocess of time.
   """
   tmp = tmp_path_factory.mktemp("sharding")
-  runs = {kind: (subprocess.Popen([sys.executable, "-c", SHARDED, kind, str(tmp / f"{kind}.npz"),
-                                   json.dumps(KINDS)],
-                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                  env=_env(2)), tmp / f"{kind}.npz")
-          for kind in ("explicit", "auto")}
+  runs = {kinds: (subprocess.Popen([sys.executable, "-c", SHARDED, kinds, str(tmp / f"{i}.npz"),
+                                    json.dumps(KINDS)],
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                   env=_env(2)), tmp / f"{i}.npz")
+          for i, kinds in enumerate(PROCESSES)}
   for name in NAMES:
     _reference(name)
   out = {}
-  for kind, (proc, path) in runs.items():
+  for kinds, (proc, path) in runs.items():
     try:
       stdout, stderr = proc.communicate(timeout=TIMEOUT_S)
     except subprocess.TimeoutExpired:
@@ -127,10 +133,11 @@ def sharded(tmp_path_factory):
         p.kill()
       raise
     line = next((l for l in stdout.splitlines() if l.startswith("REPORT ")), None)
-    if proc.returncode or line is None:
-      out[kind] = f"exit {proc.returncode}: {stderr[-3000:]}"
-    else:
-      out[kind] = json.loads(line[len("REPORT "):]), dict(np.load(path))
+    for kind in kinds.split(","):
+      if proc.returncode or line is None:
+        out[kind] = f"exit {proc.returncode}: {stderr[-3000:]}"
+      else:
+        out[kind] = json.loads(line[len("REPORT "):]), dict(np.load(path))
   return out
 
 
@@ -155,7 +162,10 @@ NAMES = ["rollout", "step_in_axes", "grid_rollout"]
 # The cases each mesh kind runs: all under explicit axes (what `jax.make_mesh` builds,
 # and where JAX type-checks the batch); under Auto axes the scan and the grid (the
 # `in_axes=None` config is an explicit-mode check). Fewer compiles, same coverage.
-KINDS = {"explicit": NAMES, "auto": ["rollout", "grid_rollout"]}
+# "unset" is the explicit mesh with no `jax.set_mesh` around the call (issue 19): the
+# batch's type carries the mesh, and the rollout must still give the one-device bits.
+KINDS = {"explicit": NAMES, "auto": ["rollout", "grid_rollout"], "unset": ["rollout"]}
+PROCESSES = ("explicit", "auto,unset")  # Two subprocesses at once, about equally long.
 CASES_RUN = [(name, kind) for kind, names in KINDS.items() for name in names]
 
 
@@ -164,12 +174,12 @@ def test_sharded_batch_matches_one_device(name, kind, sharded):
   assert jax.device_count() == 1  # This process keeps one device.
   assert not isinstance(sharded[kind], str), sharded[kind]
   report, arrays = sharded[kind]
-  got = report[name]
+  got = report[f"{kind}/{name}"]
   assert got["ok"], got["error"]
   assert got["devices"] == 2 and got["rows"] == [2, 2], got  # Two worlds on each device.
   want = _reference(name)
   for k, v in want.items():
-    assert np.array_equal(arrays[f"{name}/{k}"], v), f"{name}: {k} differs from one device"
+    assert np.array_equal(arrays[f"{kind}/{name}/{k}"], v), f"{name}: {k} differs from one device"
 
 
 def _multiprocess(*flags: str) -> subprocess.CompletedProcess:
@@ -188,7 +198,7 @@ def test_multiprocess_example_matches_one_process():
 # --- jaxchain.sharding: the batched gather and the Auto-axes wrapper -------------------
 
 HELPERS = textwrap.dedent("""
-    import json, re, sys
+    import contextlib, json, re, sys
     import jax, jax.numpy as jnp, numpy as np
     from jax import lax
     from jax.sharding import AxisType, NamedSharding, PartitionSpec as P
@@ -209,17 +219,25 @@ HELPERS = textwrap.dedent("""
     table = jnp.asarray(rng.normal(size=6).astype(np.float32))
     fn = jax.jit(jax.vmap(lambda x, i: in_auto_axes(per_world, x, i, table)))
     want = [np.asarray(a) for a in fn(x, idx)]
+    # `take` alone (no in_auto_axes) on a batched table with batched, shared and unbatched
+    # tables or indices, and its gradient.
+    bare = jax.jit(jax.vmap(lambda x, i: (take(x, i), take(x, idx[0]), take(table, i),
+                                          jax.grad(lambda t: jnp.sum(jnp.sin(take(t, i))))(x))))
+    want_bare = [np.asarray(a) for a in bare(x, idx)]
     report = {}
-    for kind in ("explicit", "auto"):
+    for kind in ("explicit", "auto", "unset"):
       mesh = jax.make_mesh((2,), ("worlds",), axis_types=(
-          AxisType.Explicit if kind == "explicit" else AxisType.Auto,))
-      with jax.set_mesh(mesh):
-        put = lambda a: jax.device_put(a, NamedSharding(mesh, P("worlds")))
-        compiled = fn.lower(put(x), put(idx)).compile()
-        got = compiled(put(x), put(idx))
+          AxisType.Auto if kind == "auto" else AxisType.Explicit,))
+      put = lambda a: jax.device_put(a, NamedSharding(mesh, P("worlds")))
+      for f, w, label in ((fn, want, kind), (bare, want_bare, f"{kind}/take")):
+        if kind != "unset" and f is bare:
+          continue  # Under a context mesh jaxchain always calls take inside in_auto_axes.
+        with jax.set_mesh(mesh) if kind != "unset" else contextlib.nullcontext():
+          compiled = f.lower(put(x), put(idx)).compile()
+          got = compiled(put(x), put(idx))
         hlo = compiled.as_text()
-        report[kind] = dict(
-            same=all(np.array_equal(np.asarray(g), w) for g, w in zip(got, want)),
+        report[label] = dict(
+            same=all(np.array_equal(np.asarray(g), v) for g, v in zip(got, w)),
             collectives=len(re.findall(r"all-gather|all-reduce|collective-permute|all-to-all", hlo)),
             sharded=[len(g.sharding.device_set) for g in got])
     print("REPORT " + json.dumps(report))
@@ -228,13 +246,16 @@ HELPERS = textwrap.dedent("""
 
 def test_helpers_under_both_meshes_without_collectives():
   """`in_auto_axes` around code JAX 0.10.1 rejects under explicit axes, with `take` inside:
-  the same bits as one device under both meshes, and no collective in the program."""
+  the same bits as one device under both meshes and under an explicit mesh that is only
+  in the batch's type (no `jax.set_mesh`), and no collective in the program. `take`
+  alone under that last one too (it splits the batch as the type says)."""
   done = subprocess.run([sys.executable, "-c", HELPERS], capture_output=True, text=True,
                         env=_env(2), timeout=TIMEOUT_S)
   assert done.returncode == 0, done.stderr[-3000:]
   report = json.loads(next(l for l in done.stdout.splitlines() if l.startswith("REPORT "))[7:])
-  for kind in ("explicit", "auto"):
+  for kind in ("explicit", "auto", "unset"):
     assert report[kind] == dict(same=True, collectives=0, sharded=[2] * 5), (kind, report)
+  assert report["unset/take"] == dict(same=True, collectives=0, sharded=[2] * 4), report
 
 
 @pytest.mark.parametrize("x_batched, idx_batched", [(True, True), (False, True), (True, False)])

@@ -16,6 +16,12 @@ step needs no communication, under both mesh axis types:
   that lives on one device, never across the whole batch (which would make XLA
   all-gather the table on every hop).
 
+`jax.set_mesh` is not needed: a batch placed on a mesh with explicit axes carries the
+mesh in its type (`jax.typeof(x).sharding.mesh`), and `in_auto_axes` takes it from
+there when there is no context mesh, so
+`jax.jit(jax.vmap(lambda w: jc.rollout(w, cfg, 40)[0]))(sharded_batch)` gives the
+one-device bits either way (issue 19).
+
 Examples:
   >>> import jax, jax.numpy as jnp
   >>> from jaxchain.sharding import in_auto_axes
@@ -44,7 +50,9 @@ def in_auto_axes(fn: Callable[..., Any], *args: Any) -> Any:
   Inside `jax.sharding.auto_axes` those axes are Auto and the program is partitioned as
   it is for an Auto mesh: no collectives, the same bits as on one device. The outputs
   come back replicated per world (`P()`), so a vmapped batch stays sharded along its
-  batch axis. Without a mesh, or with no explicit axes, it just calls `fn(*args)`.
+  batch axis. The mesh is the context mesh (`jax.set_mesh`), else the one the arrays
+  of `args` are typed with (see `mesh_of`). Without a mesh, or with no explicit axes,
+  it just calls `fn(*args)`.
 
   Args:
     fn: a function of arrays (pytrees) returning arrays (pytrees).
@@ -54,6 +62,40 @@ def in_auto_axes(fn: Callable[..., Any], *args: Any) -> Any:
     `fn(*args)`.
   """
   mesh = jax.sharding.get_abstract_mesh()
+  if mesh.empty:  # No context mesh: a batch may still carry an explicit mesh in its type.
+    typed = mesh_of(args)
+    if typed is not None:
+      with jax.sharding.use_abstract_mesh(typed):
+        return _auto(fn, typed, args)
   if mesh.empty or not mesh.explicit_axes:
     return fn(*args)
+  return _auto(fn, mesh, args)
+
+
+def _auto(fn: Callable[..., Any], mesh: jax.sharding.AbstractMesh, args: tuple) -> Any:
   return jax.sharding.auto_axes(fn, axes=mesh.explicit_axes, out_sharding=P())(*args)
+
+
+def mesh_of(tree: Any) -> jax.sharding.AbstractMesh | None:
+  """The mesh with explicit axes that some array of `tree` is typed with, else `None`.
+
+  An array placed with `jax.device_put(x, NamedSharding(mesh, P("worlds")))` over a mesh
+  with explicit axes carries that mesh in its type (`jax.typeof(x).sharding.mesh`), also
+  per world inside `jax.vmap` and inside `jax.jit` called outside `jax.set_mesh`.
+
+  Raises:
+    ValueError: if arrays of `tree` are typed with two different such meshes.
+  """
+  found = None
+  for leaf in jax.tree.leaves(tree):
+    if not isinstance(leaf, jax.Array):  # Tracers are jax.Array too; NumPy has no mesh.
+      continue
+    sharding = getattr(jax.typeof(leaf), "sharding", None)
+    mesh = getattr(sharding, "mesh", None)
+    if not isinstance(mesh, jax.sharding.AbstractMesh) or mesh.empty or not mesh.explicit_axes:
+      continue
+    if found is not None and mesh != found:
+      raise ValueError(f"jaxchain: arrays sharded over two different meshes ({found} and {mesh}); "
+                       "place the whole batch on one mesh")
+    found = mesh
+  return found
