@@ -189,8 +189,12 @@ def test_sensor_sees_a_box_while_it_overlaps_and_never_pushes(runs):
   x = 4.0 - 2.0 * DT * np.arange(1, T + 1)
   np.testing.assert_allclose(traj.pos[:, 1, 0], x, atol=1e-5)  # Not pushed.
   np.testing.assert_array_equal(traj.pos[:, 0], np.tile([2.0, 0.5], (T, 1)))  # Not moved.
-  overlapping = np.abs(x - 2.0) < 0.95
+  # Sensed in every step during which it overlaps: at the step's end or on the way there
+  # (the step from x = 1.067 to 1.033 leaves the goal: sensed, not overlapping at its end).
+  before = np.concatenate([[4.0], x[:-1]])
+  overlapping = (np.minimum(x, before) < 2.0 + 0.95) & (np.maximum(x, before) > 2.0 - 0.95)
   np.testing.assert_array_equal(traj.sensed[:, 0], overlapping)
+  assert overlapping.sum() == (np.abs(x - 2.0) < 0.95).sum() + 1
   assert overlapping.any() and not overlapping.all()
   assert not traj.sensed[:, 1].any()  # Only sensors sense.
 
@@ -307,3 +311,65 @@ def test_demo_runs_a_level_and_rejects_an_unknown_one(capsys):
     cli.main(["demo", "--no-progress", "--level", "no_such_level"])
   assert exit_info.value.code == 2
   assert "no shipped level of that name" in capsys.readouterr().err
+
+
+# --- Sensors see every overlap during a step (issue 18, item 3) ----------------------------
+
+
+def _trip_wire(speed, wire_x=1.17):
+  """A bullet (half 0.1) at `speed` along x towards a trip-wire sensor (half-width 0.05)."""
+  return world(body([0.0, 0.0], 0.1, vel=[speed, 0.0]),
+               body([wire_x, 0.0], [0.05, 1.0], INF, sensor=True), gravity=(0.0, 0.0))
+
+
+def _crossing_steps(speed, steps, wire_x=1.17, reach=0.15):
+  """Steps whose motion `[x(k-1), x(k)]` meets the open interval where the bullet
+  overlaps the wire: `|x - wire_x| < reach`."""
+  k = np.arange(1, steps + 1)
+  x0, x1 = speed * DT * (k - 1), speed * DT * k
+  return (x1 > wire_x - reach) & (x0 < wire_x + reach)
+
+
+@pytest.mark.parametrize("speed", [20.0, 30.0])
+def test_sensor_sees_a_bullet_crossing_a_trip_wire_under_substeps(speed):
+  # for_world raises substeps for the thin wire; no substep ends with the bullet on the
+  # wire's x at the end of a step, so a sensor read once per step never saw it.
+  w = _trip_wire(speed)
+  cfg = jc.Config.for_world(w)
+  assert cfg.substeps > 1 and cfg.sensors
+  _, traj = jc.rollout(w, cfg, 8, record=("sensed", "status"))
+  want = _crossing_steps(speed, 8)
+  assert want.sum() == 1  # The bullet crosses within one step.
+  np.testing.assert_array_equal(np.asarray(traj.sensed[:, 1]), want)
+  assert not np.asarray(traj.sensed[:, 0]).any()
+  assert int(traj.status[-1]) == 0  # Substeps enough: no FAST_BODY.
+  np.testing.assert_allclose(np.asarray(traj.pos[:, 0, 0]), speed * DT * np.arange(1, 9), rtol=1e-6)
+
+
+def test_sensor_sweep_catches_a_crossing_within_one_substep():
+  # One substep of 0.5: the bullet jumps from x = 0.5 to 1.0, over the whole wire (it
+  # overlaps for 0.6 < x < 0.9), in one substep; FAST_BODY reports that it could
+  # tunnel, and the swept test still sees the crossing.
+  w = _trip_wire(30.0, wire_x=0.75)
+  _, traj = jc.rollout(w, CFG, 3, record=("sensed", "status"))
+  np.testing.assert_array_equal(np.asarray(traj.sensed[:, 1]), [False, True, False])
+  np.testing.assert_array_equal(_crossing_steps(30.0, 3, wire_x=0.75), [False, True, False])
+  assert int(traj.status[-1]) & jc.status.FAST_BODY
+
+
+@pytest.mark.parametrize("begin, end, want", [
+    ((-1.0, 0.0), (1.0, 0.0), True),     # Straight through.
+    ((-1.0, 0.0), (-0.3, 0.0), False),   # Stops short.
+    ((-1.0, 0.0), (-0.25, 0.0), False),  # Ends exactly touching: not strict.
+    ((-1.0, 0.25), (1.0, 0.25), False),  # Slides along a face, exactly level: not strict.
+    ((-1.0, 0.2), (1.0, 0.2), True),     # Overlaps in y throughout: crossing in x.
+    ((-0.6, -0.6), (0.0, 0.6), True),    # Diagonal through the middle.
+    ((-0.6, 0.0), (0.0, 0.6), False),    # Diagonal past the corner: x and y never overlap together.
+    ((0.1, 0.1), (0.1, 0.1), True),      # At rest, overlapping.
+    ((0.3, 0.1), (0.3, 0.1), False),     # At rest, apart.
+])
+def test_swept_overlap_of_a_straight_motion(begin, end, want):
+  b = [jnp.float32(x) for x in begin]
+  e = [jnp.float32(x) for x in end]
+  r = [jnp.float32(0.25), jnp.float32(0.25)]
+  assert bool(jc.flags._swept_overlap(b, e, r)) is want

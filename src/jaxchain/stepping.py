@@ -35,7 +35,8 @@ class Trajectory:
     status: `[t]` int32 status bits after each step, if recorded (else None).
     touching: `[t, n, 4]` bool contact flags of each step, if recorded.
     crushed: `[t, n]` bool, crushed in each step, if recorded.
-    sensed: `[t, n]` bool, sensors overlapped at the end of each step, if recorded.
+    sensed: `[t, n]` bool, sensors overlapped at any moment of each step (every
+      substep, swept over its motion), if recorded.
   """
 
   pos: jax.Array
@@ -113,13 +114,16 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
   return p, v, code, crushed, touching
 
 
-def _sensed(world: World, pos: jax.Array, config: Config) -> tuple[jax.Array, jax.Array]:
-  """`World.sensed` at `pos` (all False without `config.sensors`), and status bits
-  of the candidate table it reads (built again at `pos`: the bodies have moved)."""
+def _sensed(world: World, pos: jax.Array, config: Config, *,
+            start: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+  """`World.sensed` at `pos`, or with `start` swept over the straight motion from
+  `start` to `pos` (a substep: `flags.sensed`); all False without `config.sensors`.
+  Also the status bits of the candidate table it reads (built again at `pos`: the
+  bodies have moved)."""
   if not config.sensors:
     return jnp.zeros_like(world.sensed), jnp.zeros((), jnp.int32)
   cand, found = broadphase.candidates(pos, world, config)
-  return flags.sensed(world, pos, cand), found
+  return flags.sensed(world, pos, cand, start), found
 
 
 def _pass_flags(overflow: jax.Array, scaled: jax.Array) -> jax.Array:
@@ -211,9 +215,13 @@ def _substep(world: World, config: Config, sub_dt: float, accel: jax.Array | Non
   code = jnp.where(_too_fast(world, vel, sub_dt), status.FAST_BODY, 0)
   predicted = world.pos + jnp.where(world.active[:, None], vel * sub_dt, 0.0)
   pos, vel, found, crushed, touching = _passes(world, predicted, config, start=world.pos, vel=vel)
-  code = code | found | _finite_code(world, pos, vel) | _crushed_code(crushed)
+  # Sensors see every overlap during the step: swept over this substep's motion (from
+  # a candidate table at its end positions), ORed over the substeps.
+  sensed, seen = _sensed(world, pos, config, start=world.pos)
+  code = code | found | seen | _finite_code(world, pos, vel) | _crushed_code(crushed)
   return dataclasses.replace(world, pos=pos, vel=vel, crushed=world.crushed | crushed,
-                             touching=world.touching | touching.T, status=world.status | code)
+                             touching=world.touching | touching.T, sensed=world.sensed | sensed,
+                             status=world.status | code)
 
 
 def _too_fast(world: World, vel: jax.Array, sub_dt: float) -> jax.Array:
@@ -237,15 +245,14 @@ def _step_body(world: World, config: Config, accel: jax.Array | None) -> World:
   # under jax.disable_jit a NaN must become NON_FINITE, not an exception.
   world = dataclasses.replace(world, crushed=jnp.zeros_like(world.crushed),  # ORed over substeps.
                               touching=jnp.zeros_like(world.touching),
+                              sensed=jnp.zeros_like(world.sensed),
                               status=world.status | _switched_off(world, config))
   if config.substeps == 1:
     world = _substep(world, config, sub_dt, accel)
   else:
     world = lax.fori_loop(0, config.substeps, lambda _, w: _substep(w, config, sub_dt, accel),
                           world)
-  # Sensors report the end of the step: once, after the last substep.
-  sensed, seen = _sensed(world, world.pos, config)
-  return dataclasses.replace(world, sensed=sensed, status=world.status | seen)
+  return world
 
 
 @functools.partial(jax.jit, static_argnames="config")
