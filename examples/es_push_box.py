@@ -5,8 +5,10 @@ parameters with `population / 2` antithetic pairs of Gaussian noise, scores ever
 perturbed policy by its episode returns in the environment (`jc.env.make`, all
 episodes of a population in one jitted, vmapped `lax.scan` of `env.step`), turns
 the returns into centred ranks and moves the parameters along the rank-weighted
-noise with Adam. The policy is linear: `action = tanh(obs @ W + b)`, a 2-D
-acceleration, from zero (the player stands still: return 0).
+noise with Adam. The policy is linear: `action = tanh(obs[:k] @ W + b)`, a 2-D
+acceleration, from zero (the player stands still: return 0). It reads the first `k`
+numbers of the observation: the player's, the box's and the goal's (not the wall
+slots at the end).
 
 Every member of a population plays the same episodes (one per level of the task,
 with the same start jitter: common random numbers), and "return" below is the mean
@@ -33,17 +35,25 @@ import jaxchain as jc
 TASK = "push_box_easy"
 
 
+def features(env) -> int:
+  """How many leading numbers of the observation the policy reads: the player's and
+  the box and goal slots, not the walls (the last slots: they only tell the four
+  rooms apart, which the box and goal slots already do)."""
+  return jc.env.PLAYER_FEATURES + len(jc.env.SLOT_FIELDS) * int(env.slots_of("wall")[0] - 1)
+
+
 def policy(theta: jax.Array, obs: jax.Array, obs_size: int) -> jax.Array:
-  """`tanh(obs @ W + b)`, with `theta` the flat `[obs_size * 2 + 2]` parameters."""
+  """`tanh(obs[:obs_size] @ W + b)`, with `theta` the flat `[obs_size * 2 + 2]`
+  parameters."""
   w = theta[: obs_size * 2].reshape(obs_size, 2)
-  return jnp.tanh(obs @ w + theta[obs_size * 2:])
+  return jnp.tanh(obs[:obs_size] @ w + theta[obs_size * 2:])
 
 
 def make_fitness(env, params, steps: int):
   """`fitness(thetas [p, d], keys [p, e], levels [e]) -> (returns [p, e], solved [p, e])`:
   parameter vector i plays the episodes (level, start-jitter key `keys[i]`) for up to
   `steps` steps; the return counts the rewards up to the end of the first episode."""
-  obs_size = env.obs_size
+  obs_size = features(env)
 
   def episode(theta, key, level):
     state = env.reset_level(key, params, level)
@@ -105,7 +115,7 @@ def train(iterations: int = 40, population: int = 32, seed: int = 0, *, sigma: f
   env, params = jc.env.make(TASK, max_steps=steps)
   n_levels = env.num_levels
   fitness = make_fitness(env, params, steps)
-  dim = env.obs_size * 2 + 2
+  dim = features(env) * 2 + 2
   theta = jnp.zeros(dim)
   key = jax.random.key(seed)
   key, eval_key = jax.random.split(key)
@@ -129,8 +139,9 @@ def train(iterations: int = 40, population: int = 32, seed: int = 0, *, sigma: f
   b1, b2, eps = 0.9, 0.999, 1e-8
   before, solved_before = evaluate(theta)
   if verbose:
-    print(f"{TASK}: levels {', '.join(env.level_names)}; policy tanh(obs @ W + b), {dim} "
-          f"parameters; population {population}, sigma {sigma}, {steps} steps per episode")
+    print(f"{TASK}: levels {', '.join(env.level_names)}; policy tanh(obs[:{features(env)}] @ W "
+          f"+ b), {dim} parameters; population {population}, sigma {sigma}, {steps} steps per "
+          f"episode")
     print(f"before: mean return {before:.3f}, solved {solved_before:.0%}")
   for it in range(iterations):
     key, k_noise, k_ep = jax.random.split(key, 3)

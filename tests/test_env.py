@@ -72,7 +72,7 @@ def _row(tree, i):
 
 
 def test_make_lists_tasks_and_rejects_bad_arguments():
-  assert set(jc_env.TASKS) == {"push_box", "push_box_easy", "reach_flag"}
+  assert set(jc_env.TASKS) == {"push_box", "push_box_easy", "push_box_discrete", "reach_flag"}
   with pytest.raises(ValueError, match="unknown task 'sokoban'"):
     jc_env.make("sokoban")
   with pytest.raises(ValueError, match=r"3 box bodies, but the env holds 2 .*max_boxes=3"):
@@ -100,12 +100,12 @@ def test_spaces_sample_valid_actions(push, reach):
     assert not bool(discrete.contains(bad))
   obs_space = push.env.observation_space(push.params)
   sample = obs_space.sample(keys[0])
-  assert sample.shape == (73,) and bool(obs_space.contains(sample))
-  assert not bool(obs_space.contains(jnp.full(73, jnp.nan)))
+  assert sample.shape == (161,) and bool(obs_space.contains(sample))
+  assert not bool(obs_space.contains(jnp.full(161, jnp.nan)))
 
 
 def test_reset_under_jit_and_vmap(push, reach):
-  for task, size in ((push, 73), (reach, 129)):
+  for task, size in ((push, 161), (reach, 161)):
     keys = jax.random.split(jax.random.key(2), B)
     obs, state = task.reset(keys, task.params)
     assert obs.shape == (B, size) and obs.dtype == jnp.float32
@@ -116,7 +116,7 @@ def test_reset_under_jit_and_vmap(push, reach):
     assert level.min() >= 0 and level.max() < task.env.num_levels
     assert len(set(level.tolist())) > 1  # Random levels.
     # The player is slot 0, jittered by at most `jitter` from its level's start.
-    start = np.asarray(task.env._levels["pos"])[level, 0]
+    start = np.asarray(task.env.level_data["pos"])[level, 0]
     offset = np.asarray(state.world.pos[:, 0]) - start
     assert np.all(np.abs(offset) <= task.params.jitter + 1e-6) and np.abs(offset).max() > 0
     assert np.all(np.asarray(state.world.category[:, 0]) == levels.PLAYER)
@@ -132,7 +132,7 @@ def test_observation_layout(push):
   p0 = np.asarray(w.pos[0])
   np.testing.assert_allclose(obs[:2], (p0 - lo) / (hi - lo), rtol=1e-6)
   np.testing.assert_array_equal(obs[2:9], 0.0)  # At rest, no contacts yet, t = 0.
-  slots = obs[9:].reshape(8, 8)  # 4 box slots, then 4 goal slots.
+  slots = obs[9:73].reshape(8, 8)  # 4 box slots, then 4 goal slots (then walls).
   np.testing.assert_array_equal(slots[:, 0], [1, 1, 0, 0, 1, 1, 0, 0])
   np.testing.assert_array_equal(slots[[2, 3, 6, 7]], 0.0)
   box = push.env.slots_of("box")[0]
@@ -154,8 +154,8 @@ def test_step_under_jit_and_vmap(push, reach):
     assert obs.shape == (b, task.env.obs_size) and obs.dtype == jnp.float32
     assert reward.shape == (b,) and reward.dtype == jnp.float32
     assert done.shape == (b,) and done.dtype == jnp.bool_
-    assert set(info) == {"final_obs", "terminated", "truncated", "success", "episode_return",
-                         "episode_length", "status"}
+    assert set(info) == {"final_obs", "terminated", "truncated", "success", "invalid_action",
+                         "episode_return", "episode_length", "status"}
     assert info["final_obs"].shape == obs.shape
     assert np.all(np.asarray(state.t) == 3) and not np.any(np.asarray(done))
     assert np.all(np.asarray(info["status"]) & jc.status.NON_FINITE == 0)
@@ -179,7 +179,7 @@ def test_push_box_success_reward_done_and_auto_reset(push):
   assert 2.0 < reward[0] < 2.0 + p.shaping * 0.1
   assert done[0] and bool(info["terminated"][0]) and bool(info["success"][0])
   assert not bool(info["truncated"][0])
-  final = np.asarray(info["final_obs"][0, 9:]).reshape(8, 8)
+  final = np.asarray(info["final_obs"][0, 9:73]).reshape(8, 8)
   assert final[0, 7] == 1 and final[4, 7] == 1  # The box is on the goal, the goal filled.
   assert float(info["episode_return"][0]) == reward[0] and int(info["episode_length"][0]) == 1
   # Row 1: truncated, not terminated, at the step limit.
@@ -187,7 +187,7 @@ def test_push_box_success_reward_done_and_auto_reset(push):
   assert int(info["episode_length"][1]) == p.max_steps and not bool(info["success"][1])
   # Rows 2, 3: nothing happens; sokoban3's box that started home earns nothing more.
   assert reward[2] == 0 and reward[3] == 0 and not done[2] and not done[3]
-  assert np.asarray(obs[2, 9:]).reshape(8, 8)[0, 7] == 1
+  assert np.asarray(obs[2, 9:73]).reshape(8, 8)[0, 7] == 1
   # Where done, obs and state are a fresh reset with the step's reset key.
   obs_reset, fresh = push.reset(jax.vmap(lambda k: jax.random.split(k)[1])(keys), p)
   for i in (0, 1):
@@ -236,7 +236,7 @@ def test_reach_flag_rewards_jump_and_patrol(reach):
   np.testing.assert_array_equal(reward[2:], 0.0)
   assert not done[2:].any()
   # Kinematic platform (platformer1): level velocity -1 along x, reversed from t = patrol.
-  kin = reach.env.slots_of("platform")[np.asarray(reach.env._levels["vel"])[0][
+  kin = reach.env.slots_of("platform")[np.asarray(reach.env.level_data["vel"])[0][
       reach.env.slots_of("platform"), 0] != 0][0]
   np.testing.assert_allclose(np.asarray(new.world.vel[4:6, kin]), [[1.0, 0.0], [-1.0, 0.0]])
   # Jumps: at reset nobody is grounded yet, so row 2 only lands; now it is grounded.
@@ -280,7 +280,7 @@ def test_render_frames(push):
   # about its centre to square pixels); a point off its centre, away from the goal
   # sokoban3's player stands on.
   for i in range(3):
-    lo, hi = np.asarray(push.env._levels["bounds"])[int(states.level[i])].reshape(2, 2)
+    lo, hi = np.asarray(push.env.level_data["bounds"])[int(states.level[i])].reshape(2, 2)
     scale = max((hi - lo) / [w, h])
     centre = (lo + hi) / 2
     x, y = np.asarray(states.world.pos[i, 0]) + [-0.2, 0.2]
@@ -299,5 +299,10 @@ def test_training_raises_the_return():
 
 
 def test_doctests():
-  result = doctest.testmod(jc_env, optionflags=doctest.ELLIPSIS)
-  assert result.attempted >= 10 and result.failed == 0
+  attempted = 0
+  for module in (jc_env, jc_env.core, jc_env.spaces, jc_env.actions, jc_env.observations,
+                 jc_env.tasks):
+    result = doctest.testmod(module, optionflags=doctest.ELLIPSIS)
+    assert result.failed == 0, module.__name__
+    attempted += result.attempted
+  assert attempted >= 10
