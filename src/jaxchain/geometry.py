@@ -106,7 +106,8 @@ def along_axis(o: jax.Array, use_y: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 
 def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
-             start: jax.Array | None = None, one_way: OneWay | None = None) -> Contacts:
+             start: jax.Array | None = None, one_way: OneWay | None = None,
+             surface: jax.Array | None = None) -> Contacts:
   """Contacts of every candidate pair.
 
   The contact axis of a pair that overlapped at `start` (or of every pair, without
@@ -125,6 +126,12 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
   With `one_way` (see `OneWay`), a pair with a one-way member is a contact only when
   the one-way rule admits it, and then along y.
 
+  With `surface` (and `start`), seams: a pair whose faces were level along both axes at
+  `start` (a corner contact: `|o0| <= skin` on both) takes the axis that a surface
+  bodies make decides (`seam_axis`): a body sliding along a floor of separate tiles
+  rides onto the next tile, and one sliding down a wall of tiles slides past the next,
+  whatever the rounding (no ghost collisions).
+
   Args:
     pos: `[n, 2]` centres.
     half: `[n, 2]` half-extents.
@@ -132,6 +139,8 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
     skin: gap below which separated bodies still count as linked.
     start: optional `[n, 2]` centres at the start of the step.
     one_way: optional one-way bodies (`OneWay`).
+    surface: optional `[n]` bool, the bodies whose faces make surfaces (immovable,
+      not one-way): read with `start` only.
   """
   n = pos.shape[0]
   # One [n, m] array per coordinate: a trailing axis of 2 would leave XLA:CPU's
@@ -147,6 +156,8 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
     ox0, oy0 = hx - jnp.abs(dx0), hy - jnp.abs(dy0)
     separated = (ox0 <= 0) | (oy0 <= 0)
     use_y = jnp.where(separated, _impact_axis(ox0, oy0, ox, oy, use_y, skin), use_y)
+    if surface is not None:
+      use_y = seam_axis(cand, half, surface, dx0, dy0, ox0, oy0, skin, use_y)
     dx, dy = jnp.where(separated, dx0, dx), jnp.where(separated, dy0, dy)
   admitted, upward = None, None
   if one_way is not None:
@@ -230,6 +241,66 @@ def _materialise(x: jax.Array) -> jax.Array:
   return lax.dynamic_update_slice(jnp.zeros_like(x), x, (zero,) * x.ndim)
 
 
+def surface_cover(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Array,
+                  dy0: jax.Array, skin: float) -> jax.Array:
+  """`[4, 2, n]` bool: entry `(f, c, i)`, the space just outside face f of body i (in
+  `DIRECTIONS` order), next to the face's corner c (`0`: the corner on the positive
+  side of the other axis, `1`: the negative one), lies inside a surface body.
+
+  Read from i's candidates k (`dx0, dy0`: `[n, m]` offsets `p_k - p_i` at the start):
+  along the face's axis k starts at or before the face plane (within `skin`) and ends
+  beyond it; along the other axis it reaches the corner (within `skin`) and extends
+  past it into the face. A surface body that covers a face there makes it an inner
+  side of the surface.
+  """
+  col = lambda k: half[:, k][:, None]
+  partner = lambda k: cand.gather(half[:, k])
+  ok = cand.mask & cand.gather(surface)
+
+  def axis_tests(d, h_i, h_k):  # Per sign s = +1, -1: (face tests, corner tests).
+    face = [(s * d - h_k - h_i <= skin) & (s * d + h_k - h_i > skin) for s in (1.0, -1.0)]
+    corner = [(s * d + h_k - h_i >= -skin) & (s * d - h_k - h_i < -skin) for s in (1.0, -1.0)]
+    return face, corner
+
+  face_x, corner_x = axis_tests(dx0, col(0), partner(0))
+  face_y, corner_y = axis_tests(dy0, col(1), partner(1))
+  faces = [(face_x[0], corner_y), (face_x[1], corner_y), (face_y[0], corner_x),
+           (face_y[1], corner_x)]
+  return jnp.stack([jnp.stack([jnp.any(ok & f & c, axis=-1) for c in corners])
+                    for f, corners in faces])
+
+
+def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Array,
+              dy0: jax.Array, ox0: jax.Array, oy0: jax.Array, skin: float,
+              use_y: jax.Array) -> jax.Array:
+  """The contact axis of corner contacts next to surfaces (`[n, m]` bool, y or not).
+
+  Two bodies i and j whose faces were level along both axes at the start (`|o0| <=
+  skin` on both) meet at a common corner C, diagonally. Of the two other quadrants at
+  C, one lies beside i's face along y and j's face along x, the other beside i's face
+  along x and j's face along y. Where exactly one of them is inside a surface body
+  (`surface_cover`, read from both rows, so the rule is symmetric), the faces beside
+  it are inner sides of that surface: the contact is along the other axis. A player
+  whose edge is on the seam between two floor tiles rests on the next tile (it does not
+  hit its side), and one pressed against a wall of tiles with its bottom on a seam
+  slides past the next tile down (it does not stand on its top). Other pairs keep
+  `use_y`.
+  """
+  cover = surface_cover(cand, half, surface, dx0, dy0, skin)
+  own, other = cover[..., None], cand.gather(cover)  # [4, 2, n, m] each.
+  sx, sy = dx0 > 0, dy0 > 0  # j's side of i along each axis.
+
+  def pick(c, pos_face, neg_face, face_sign, corner_sign):
+    at = lambda f: jnp.where(corner_sign, c[f, 0], c[f, 1])
+    return jnp.where(face_sign, at(pos_face), at(neg_face))
+
+  # Beside i's y face and j's x face (then the contact is along y), and the other one.
+  beside_x = pick(own, 2, 3, sy, sx) | pick(other, 0, 1, ~sx, ~sy)
+  beside_y = pick(own, 0, 1, sx, sy) | pick(other, 2, 3, ~sy, ~sx)
+  corner = (jnp.abs(ox0) <= skin) & (jnp.abs(oy0) <= skin)
+  return jnp.where(corner & (beside_x != beside_y), beside_x, use_y)
+
+
 def impact_axis(o0: jax.Array, o1: jax.Array, tie: jax.Array, skin: float) -> jax.Array:
   """Whether a pair separated at the start met along y: per-axis overlaps `o0` at the
   start and `o1` now (`[..., 2]`), moving linearly in between.
@@ -238,7 +309,9 @@ def impact_axis(o0: jax.Array, o1: jax.Array, tie: jax.Array, skin: float) -> ja
   resting on, or sliding along, each other's face) keeps that axis: a box sliding over
   the seam between two floor tiles of one height rides onto the next tile instead of
   hitting its side (a "ghost collision"), and one touching a box's side pushes it.
-  Otherwise, along each axis the projections start overlapping at the fraction
+  Level along both axes (a corner contact, as at a seam the body's edge is exactly on)
+  says nothing by itself: rounding decides the times below, so `contacts` lets the
+  surface around the corner decide first (`seam_axis`). Otherwise, along each axis the projections start overlapping at the fraction
   `t = -o0 / (o1 - o0)` of the motion (0 if they already overlapped, and later than any
   fraction if they still do not: that axis still separates them). The boxes meet when
   the later of the two does, so that is the contact axis. Ties (level along both axes,
@@ -351,7 +424,8 @@ class Links:
 
 def links(pos: jax.Array, half: jax.Array, cand: Candidates, *, skin: float,
           limit: int | None, rows: jax.Array, start: jax.Array | None = None,
-          one_way: OneWay | None = None) -> tuple[Links, jax.Array]:
+          one_way: OneWay | None = None,
+          surface: jax.Array | None = None) -> tuple[Links, jax.Array]:
   """The contacts-and-links stage of a pass: `contacts`, then `link_table`.
 
   Args:
@@ -364,11 +438,14 @@ def links(pos: jax.Array, half: jax.Array, cand: Candidates, *, skin: float,
       moves).
     start: optional `[n, 2]` centres at the start of the step (contact axes).
     one_way: optional one-way bodies (`OneWay`, see `contacts`).
+    surface: optional `[n]` bool, bodies whose faces make surfaces (seams, see
+      `contacts`).
 
   Returns:
     `(links, overflow)`: the `[l, 4, n]` table and whether a row lost links.
   """
-  return link_table(contacts(pos, half, cand, skin, start, one_way), cand, limit, rows=rows)
+  return link_table(contacts(pos, half, cand, skin, start, one_way, surface), cand, limit,
+                    rows=rows)
 
 
 def by_direction(c: Contacts, rows: jax.Array | None = None) -> jax.Array:

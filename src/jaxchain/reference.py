@@ -57,7 +57,9 @@ class _Scene:
     which their faces were level at `start` (overlap within the skin) if that holds for
     exactly one axis, else the axis along which the gap closed last on the straight
     path from `start` to now (its time of impact); the side is the one b lay on at
-    `start`.
+    `start`. A pair level along both axes at `start` (a corner contact) then takes the
+    axis a surface of immovable bodies beside the corner decides, if one does
+    (`seam_axis`).
     """
     delta = self.pos[b] - self.pos[a]
     o = self.half[a] + self.half[b] - np.abs(delta)
@@ -73,12 +75,48 @@ class _Scene:
           axis = 1 if level[1] else 0
         elif t[0] != t[1]:  # Else the axis of the later time of impact.
           axis = 1 if t[1] > t[0] else 0
+      if abs(o0[0]) <= self.skin and abs(o0[1]) <= self.skin:  # A corner contact: seams.
+        axis = self.seam_axis(a, b, delta0, axis)
+      if min(o0) <= 0:
         delta = delta0
     if delta[axis] > 0 or (delta[axis] == 0 and b > a):
       sign = 1.0
     else:
       sign = -1.0
     return axis, sign, o[axis], o[1 - axis]
+
+  def seam_axis(self, a: int, b: int, delta0, axis: int) -> int:
+    """The axis of a corner contact (faces level along both axes at `start`) next to a
+    surface of immovable bodies: of the two quadrants beside the common corner, the
+    one beside a's face along y and b's along x, and the one beside a's face along x
+    and b's along y, if exactly one lies inside an immovable body, the faces beside it
+    are inner sides of a surface and the contact is along the other axis."""
+    sx = 1.0 if delta0[0] > 0 else -1.0
+    sy = 1.0 if delta0[1] > 0 else -1.0
+    beside_x = self.covered(a, 1, sy, sx) or self.covered(b, 0, -sx, -sy)
+    beside_y = self.covered(a, 0, sx, sy) or self.covered(b, 1, -sy, -sx)
+    if beside_x != beside_y:
+      return 1 if beside_x else 0
+    return axis
+
+  def covered(self, i: int, face_axis: int, face_sign: float, corner_sign: float) -> bool:
+    """Whether the space just outside body i's face (face_axis, face_sign) at `start`,
+    next to that face's corner on side corner_sign of the other axis, lies inside an
+    immovable body k: along the face's axis k starts at or before the face (within the
+    skin) and ends beyond it; along the other axis it reaches the corner (within the
+    skin) and extends past it into the face."""
+    a, b, s, t = face_axis, 1 - face_axis, face_sign, corner_sign
+    for k in range(self.n):
+      if k == i or not np.isinf(self.mass[k]):
+        continue
+      d = self.start[k] - self.start[i]
+      h_i, h_k = self.half[i], self.half[k]
+      face = s * d[a] - h_k[a] - h_i[a] <= self.skin and s * d[a] + h_k[a] - h_i[a] > self.skin
+      corner = (t * d[b] + h_k[b] - h_i[b] >= -self.skin
+                and t * d[b] - h_k[b] - h_i[b] < -self.skin)
+      if face and corner:
+        return True
+    return False
 
   def linked(self, a: int, b: int) -> bool:
     """Whether a and b touch (within the skin) or overlap along their contact axis."""

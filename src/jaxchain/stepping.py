@@ -80,13 +80,20 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
   if config.one_way:
     fixed = world.active & (world.inv_mass == 0)
     one_way = geometry.OneWay(one_way=world.active & world.one_way, solid=fixed & ~world.one_way)
+  # Seams: the faces of immovable bodies make surfaces (one-way bodies excepted; sensors
+  # are out of every candidate table already).
+  surface = None
+  if config.immovable and start is not None:
+    surface = world.active & (world.inv_mass == 0)
+    surface = surface & ~world.one_way if config.one_way else surface
 
   def one_pass(_, carry):
     p, v, code, _, crushed, touching = carry
     cand, found = broadphase.candidates(p, world, config)
     cand = flags.admit(cand, world, layers=config.layers, sensors=config.sensors)
     front, overflow = geometry.links(p, world.half, cand, skin=config.skin, limit=config.links,
-                                     rows=movable, start=start, one_way=one_way)
+                                     rows=movable, start=start, one_way=one_way,
+                                     surface=surface)
     out = chain.displacement(front, mass, ~movable, depth=config.depth,
                              track_immovable=config.immovable, vel=v, stick=velocity.STICK,
                              converge=config.converge)
