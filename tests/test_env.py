@@ -27,8 +27,9 @@ TRACES = {}  # Task name -> how many times its shared step was traced.
 class Task:
   """An env, its params and its shared compiled functions."""
 
-  def __init__(self, name):
-    self.env, self.params = jc_env.make(name)
+  def __init__(self, name, made=None):
+    self.env, self.params = jc_env.make(name) if made is None else made
+    name = self.env.name
     TRACES[name] = 0
 
     def counted_step(key, state, action, params):
@@ -56,6 +57,23 @@ def push():
 @pytest.fixture(scope="module")
 def reach():
   return Task("reach_flag")
+
+
+@pytest.fixture(scope="module")
+def discrete():
+  return Task("push_box_discrete")
+
+
+def _load_example(name):
+  spec = importlib.util.spec_from_file_location(name, ROOT / "examples" / f"{name}.py")
+  module = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(module)
+  return module
+
+
+@pytest.fixture(scope="module")
+def two_box():
+  return Task(None, _load_example("two_box_task").make_env())
 
 
 def _with(states, row, **world_changes):
@@ -140,6 +158,14 @@ def test_observation_layout(push):
   np.testing.assert_allclose(slots[0, 5:7], [0.45, 0.45], rtol=1e-6)
   np.testing.assert_allclose(slots[4, 5:7], [0.05, 0.05], rtol=1e-6)
   assert slots[0, 7] == 0 and slots[4, 7] == 0  # No box on a goal in sokoban2.
+  # Then the walls, in fixed slots: sokoban2 has 7 of the 11 (sokoban3 has 11).
+  walls = obs[73:].reshape(11, 8)
+  np.testing.assert_array_equal(walls[:, 0], [1] * 7 + [0] * 4)
+  np.testing.assert_array_equal(walls[7:], 0.0)
+  wall_ids = lv.indices("wall")
+  np.testing.assert_allclose(walls[:7, 5:7], lv.half[wall_ids], rtol=1e-6)
+  np.testing.assert_allclose(walls[:7, 1:3], lv.pos[wall_ids] - p0, rtol=1e-5, atol=1e-6)
+  np.testing.assert_array_equal(walls[:, [3, 4, 7]], 0.0)  # At rest, no flag.
 
 
 def test_step_under_jit_and_vmap(push, reach):
@@ -290,9 +316,7 @@ def test_render_frames(push):
 
 
 def test_training_raises_the_return():
-  spec = importlib.util.spec_from_file_location("es_push_box", ROOT / "examples" / "es_push_box.py")
-  module = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(module)
+  module = _load_example("es_push_box")
   before, after = module.train(iterations=6, population=8, seed=0, steps=100, learning_rate=0.1)
   assert before == 0.0  # The zero policy stands still.
   assert after > before + 0.5, (before, after)
@@ -306,3 +330,296 @@ def test_doctests():
     assert result.failed == 0, module.__name__
     attempted += result.attempted
   assert attempted >= 10
+
+
+# Tasks from parts.
+
+
+def test_two_box_task_from_parts(two_box):
+  env, p = two_box.env, two_box.params
+  assert env.level_names == ("two_box",) and env.action_space(p) == jc_env.Discrete(5)
+  assert [k for k, _ in env.slots] == ["box", "goal", "wall"] and env.actions.repeat == 4
+  assert env.obs_shape == (9 + 8 * (2 + 2 + len(env.slots_of("wall"))),)
+  assert env.config.gravity is False and p.max_steps == 100
+  states, keys = two_box.states([0], seed=20, params=p.replace(jitter=0.0))
+  # Row 0: both boxes just short of their goals, sliding in at 3 u/s: home within the
+  # first of the 4 physics steps. Row 1: the player runs right from rest.
+  box, goal = env.slots_of("box"), env.slots_of("goal")
+  w = states.world
+  for b, g in zip(box, goal):
+    target = np.asarray(w.pos[0, g])
+    order = np.argsort(np.abs(np.asarray(w.pos[0, box, 1]) - target[1]))
+    b = box[order[0]]
+    states = _with(states, 0, pos=((b,), jnp.asarray(target - [0.52, 0.0])),
+                   vel=((b,), jnp.array([3.0, 0.0])))
+  actions = jnp.array([0, 2, 0, 0, 0, 0, 0, 0], jnp.int32)
+  obs, new, reward, done, info = two_box.step(keys, states, actions, p)
+  assert bool(done[0]) and bool(info["terminated"][0]) and bool(info["success"][0])
+  # One physics step counted (+1 per goal, +2 both home, shaping, one step cost); the
+  # world stops at the termination: the boxes' speed after one step of drag, not four.
+  assert 4.0 - 0.002 < float(reward[0]) < 4.2
+  dt = env.config.dt
+  final = np.asarray(info["final_obs"][0, 9:9 + 16]).reshape(2, 8)
+  np.testing.assert_allclose(final[:, 3], 3.0 * (1 - p.box_drag * dt), rtol=1e-5)
+  # Row 1: four steps of semi-implicit Euler with drag, no contact.
+  v, x = 0.0, 0.0
+  for _ in range(4):
+    v = v + dt * (p.accel - p.drag * v)
+    x = x + dt * v
+  np.testing.assert_allclose(float(new.world.vel[1, 0, 0]), v, rtol=1e-5)
+  np.testing.assert_allclose(float(new.world.pos[1, 0, 0] - states.world.pos[1, 0, 0]), x,
+                             rtol=1e-4)
+  assert not bool(done[1]) and int(new.t[1]) == 1
+  # Auto-reset equals reset with the step's reset key; nothing retraces.
+  _, fresh = two_box.reset(jax.vmap(lambda k: jax.random.split(k)[1])(keys), p)
+  chex_equal(_row(new, 0), _row(fresh, 0))
+  two_box.step(keys, new, actions, p)
+  assert TRACES["two_box"] == 1
+
+
+def test_discrete_push_box_moves(discrete):
+  env, p = discrete.env, discrete.params
+  assert env.action_space(p) == jc_env.Discrete(5) and env.obs_shape == (161,)
+  states, keys = discrete.states([0, 0, 0, 0, 0], params=p.replace(jitter=0.0))
+  actions = jnp.array([0, 1, 2, 3, 4, 0, 0, 0], jnp.int32)
+  _, new, *_ = discrete.step(keys, states, actions, p)
+  dv = np.asarray(new.world.vel[:5, 0])
+  step = p.accel * env.config.dt
+  np.testing.assert_allclose(dv, [[0, 0], [-step, 0], [step, 0], [0, -step], [0, step]],
+                             atol=1e-6)
+
+
+# Actions.
+
+
+def test_invalid_actions_act_as_noop_and_truncate(discrete, push):
+  p = discrete.params
+  states, keys = discrete.states([0, 1, 2, 0, 1, 2, 0, 1], seed=21)
+  actions = jnp.array([2, 5, -1, 100, 6, 0, 4, 1], jnp.int32)
+  _, new, reward, done, info = discrete.step(keys, states, actions, p)
+  noop = jnp.where(jnp.array([False, True, True, True, True, False, False, False]), 0, actions)
+  _, new_noop, reward_noop, *_ , info_noop = discrete.step(keys, states, noop, p)
+  bad = np.array([0, 1, 1, 1, 1, 0, 0, 0], bool)
+  np.testing.assert_array_equal(np.asarray(info["invalid_action"]), bad)
+  np.testing.assert_array_equal(np.asarray(info["truncated"]), bad)
+  np.testing.assert_array_equal(np.asarray(done), bad)
+  assert not np.any(np.asarray(info["terminated"]))
+  assert not np.any(np.asarray(info_noop["invalid_action"]))
+  np.testing.assert_array_equal(np.asarray(info["final_obs"]), np.asarray(info_noop["final_obs"]))
+  np.testing.assert_array_equal(np.asarray(reward), np.asarray(reward_noop))
+  # Continuous: a non-finite action is invalid; a finite one outside [-1, 1] is clipped.
+  states, keys = push.states([0, 1, 2], seed=22)
+  acts = jnp.zeros((B, 2)).at[0, 0].set(jnp.nan).at[1, 1].set(jnp.inf).at[2].set(jnp.array([3.0, 0.0]))
+  _, _, reward, done, info = push.step(keys, states, acts, push.params)
+  _, _, _, _, info_ref = push.step(keys, states, acts.at[:2].set(0.0).at[2, 0].set(1.0),
+                                   push.params)
+  np.testing.assert_array_equal(np.asarray(info["invalid_action"])[:3], [True, True, False])
+  np.testing.assert_array_equal(np.asarray(info["truncated"])[:3], [True, True, False])
+  assert not np.any(np.asarray(info["terminated"])) and np.all(np.isfinite(np.asarray(reward)))
+  np.testing.assert_array_equal(np.asarray(info["final_obs"]), np.asarray(info_ref["final_obs"]))
+
+
+def test_actions_checked_at_trace_time(push, discrete):
+  key = jax.random.key(23)
+  for task, bad, error, match in (
+      (push, jnp.float32(0.5), ValueError, r"action: expected shape \(2,\) and dtype float32"),
+      (push, jnp.zeros(3), ValueError, r"action: expected shape \(2,\), got|action: expected shape"),
+      (push, jnp.zeros((4, 2)), ValueError, "vmap env.step"),
+      (push, jnp.array([1, 0]), TypeError, "action: expected a float array of shape"),
+      (discrete, jnp.float32(2.7), TypeError, r"action: expected an integer array of shape \(\)"),
+      (discrete, jnp.array([1]), ValueError, r"action: expected shape \(\)"),
+      (discrete, jnp.array(True), TypeError, "action"),
+  ):
+    state = task.env.reset_level(key, task.params, 0)
+    with pytest.raises(error, match=match):
+      jax.eval_shape(task.env.step, key, state, bad, task.params)
+  # check_actions="raise": eager calls with a concrete invalid action raise; traced ones flag.
+  env, p = jc_env.make("push_box_discrete", check_actions="raise")
+  state = env.reset_level(key, p, 0)
+  with pytest.raises(ValueError, match=r"action 7 is not in Discrete\(n=5"):
+    env.step_env(key, state, 7, p)
+  with pytest.raises(ValueError, match="not in Box"):
+    jc_env.make("push_box", check_actions="raise")[0].step_env(key, _row(push.states([0])[0], 0),
+                                                                jnp.array([jnp.nan, 0.0]),
+                                                                push.params)
+  out = jax.eval_shape(env.step, key, state, jnp.int32(7), p)
+  assert out[4]["invalid_action"].dtype == jnp.bool_
+  with pytest.raises(ValueError, match="check_actions must be one of"):
+    jc_env.make("push_box", check_actions="warn")
+
+
+# Physics through make and params; randomisation.
+
+
+def test_make_takes_physics_switches_config_and_names_its_keywords():
+  key = jax.random.key(24)
+  env, p = jc_env.make("reach_flag", gravity=(0, -9.81))  # Was an internal TypeError.
+  np.testing.assert_allclose(np.asarray(p.gravity), [0.0, -9.81])
+  env, p = jc_env.make("reach_flag", friction=True)
+  assert env.config.friction and p.friction is None
+  env, p = jc_env.make("push_box", friction=0.5, gravity=(0.0, -1.0), depth=2)
+  assert env.config.friction and env.config.gravity and env.config.depth == 2
+  w = env.reset_level(key, p, 0).world
+  np.testing.assert_allclose(np.asarray(w.friction)[np.asarray(w.active)], 0.5)
+  np.testing.assert_allclose(np.asarray(w.gravity), [0.0, -1.0])
+  cfg = jc.Config(gravity=False, friction=False, depth=3, one_way=False)
+  assert jc_env.make("push_box", config=cfg)[0].config == cfg
+  assert jc_env.make("push_box", config=cfg, substeps=2)[0].config == cfg.replace(substeps=2)
+  with pytest.raises(TypeError, match=r"unknown keyword 'max_crates'. Accepted: levels, obs, "
+                     r"config, randomize.*max_steps.*max_boxes, max_goals, max_walls.*substeps"):
+    jc_env.make("push_box", max_crates=2)
+  with pytest.raises(TypeError, match="run_speed"):
+    jc_env.make("push_box", run_speed=2.0)  # A reach_flag param: push_box's are its own.
+  # Physics the Config would leave out raises, never silently drops.
+  env, p = jc_env.make("push_box")
+  assert not env.config.friction and not env.config.gravity
+  with pytest.raises(ValueError, match="params.friction is set, but this env's Config leaves"):
+    env.reset_level(key, p.replace(friction=jnp.float32(0.3)), 0)
+  with pytest.raises(ValueError, match="params.gravity is set"):
+    env.reset(key, p.replace(gravity=jnp.array([0.0, -9.81])))
+  with pytest.raises(ValueError, match="the randomize hook sets friction"):
+    jc_env.make("push_box", friction=False,
+                randomize=jc_env.uniform_physics(friction=(0.1, 0.5)))
+  # A friction value switches friction on, in a given config too.
+  assert jc_env.make("push_box", friction=0.5, config=cfg)[0].config == cfg.replace(friction=True)
+
+
+@pytest.fixture(scope="module")
+def randomized():
+  hook = jc_env.uniform_physics(friction=(0.2, 0.8), mass=(0.5, 2.0),
+                                gravity=((0.0, -2.0), (0.0, -1.0)), size=(0.9, 1.0))
+  return Task(None, jc_env.make("push_box_easy", randomize=hook, max_steps=2))
+
+
+def test_randomisation_applied_at_reset_and_after_auto_reset(randomized):
+  env, p = randomized.env, randomized.params
+  assert env.config.friction and env.config.gravity  # Switched on by what the hook sets.
+  keys = jax.random.split(jax.random.key(25), B)
+  obs, states = randomized.reset(keys, p)
+
+  def check(w, levels):
+    active = np.asarray(w.active)
+    mu = np.asarray(w.friction)
+    for i in range(B):
+      assert np.all(mu[i, active[i]] == mu[i, active[i]][0]) and 0.2 <= mu[i, 0] <= 0.8
+      box = env.slots_of("box")[0]
+      mass = 1 / float(w.inv_mass[i, box])
+      assert 0.5 <= mass <= 2.0
+      level_half = np.asarray(env.level_data["half"])[levels[i], box]
+      assert np.all(np.asarray(w.half[i, box]) <= level_half + 1e-6)
+      assert np.all(np.asarray(w.half[i, box]) >= 0.9 * level_half - 1e-6)
+      assert -2.0 <= float(w.gravity[i, 1]) <= -1.0 and float(w.gravity[i, 0]) == 0.0
+    assert len(set(mu[:, 0].tolist())) == B  # Per episode.
+
+  check(states.world, np.asarray(states.level))
+  step_keys = jax.random.split(jax.random.key(26), B)
+  _, states1, *_ = randomized.step(step_keys, states, jnp.zeros((B, 2)), p)
+  obs2, states2, _, done, info = randomized.step(step_keys, states1, jnp.zeros((B, 2)), p)
+  assert np.all(np.asarray(done)) and np.all(np.asarray(info["truncated"]))
+  assert np.all(np.asarray(states2.t) == 0)
+  check(states2.world, np.asarray(states2.level))
+  assert not np.array_equal(np.asarray(states2.world.friction), np.asarray(states.world.friction))
+  _, fresh = randomized.reset(jax.vmap(lambda k: jax.random.split(k)[1])(step_keys), p)
+  chex_equal(states2, fresh)
+
+
+# Observations.
+
+
+def test_grid_and_pixel_observations():
+  key = jax.random.key(27)
+  lv = levels.load("sokoban1")
+  env, p = jc_env.make("push_box", obs="grid", jitter=0.0)
+  state = env.reset_level(key, p, 0)  # sokoban1 (6 x 5) in a 9 x 7 grid, at the top left.
+  grid = np.asarray(jax.jit(env.get_obs)(state, p))
+  assert env.grid_channels == ("player", "box", "goal", "wall")
+  assert grid.shape == env.observation_space(p).shape == (7, 9, 4) and grid.dtype == np.float32
+  assert bool(env.observation_space(p).contains(grid))
+  channel = dict(zip(env.grid_channels, np.moveaxis(grid, -1, 0)))
+  onehot = lambda r, c: np.zeros((7, 9)).__setitem__((r, c), 1.0) or None
+  for kind, body in (("player", 3), ("box", 4), ("goal", 5)):
+    x, y = lv.pos[body]
+    want = np.zeros((7, 9))
+    want[int(5 - y), int(x)] = 1.0  # Row 0 is the top (y = 5).
+    np.testing.assert_allclose(channel[kind], want, atol=1e-6, err_msg=kind)
+  want = np.zeros((7, 9))
+  want[:5, :6] = 1.0
+  want[1:4, 1:5] = 0.0
+  np.testing.assert_allclose(channel["wall"], want, atol=1e-6)
+  del onehot
+  # A box straddling two cells covers each about half.
+  w = state.world
+  state = state.replace(world=w.replace(pos=w.pos.at[env.slots_of("box")[0]].set(
+      jnp.array([3.0, 2.5]))))
+  box = np.asarray(env.get_obs(state, p))[..., 1]
+  np.testing.assert_allclose(box[2, 2:4], [0.5, 0.5], rtol=1e-5)
+  # Pixels: 64 x 64, the goal a visible square, the player in its colour.
+  env, p = jc_env.make("push_box", obs="pixels", jitter=0.0)
+  state = env.reset_level(key, p, 0)
+  img = np.asarray(jax.jit(env.get_obs)(state, p))
+  space = env.observation_space(p)
+  assert img.shape == space.shape == (64, 64, 3) and img.dtype == space.dtype == np.uint8
+  assert bool(space.contains(img))
+  scale = 9 / 64  # The view: sokoban1's bounds, widened to square pixels.
+  def pixel(x, y):
+    return int(32 - (y - 2.5) / scale), int(32 + (x - 3.0) / scale)
+  assert tuple(img[pixel(*lv.pos[3])]) == jc.drawing.PALETTE.player
+  gx, gy = lv.pos[5]
+  r0, c0 = pixel(gx - 0.3, gy + 0.3)
+  r1, c1 = pixel(gx + 0.3, gy - 0.3)
+  background = np.array(jc.drawing.PALETTE.background)
+  changed = np.any(img[r0:r1 + 1, c0:c1 + 1] != background, axis=-1)
+  assert changed.sum() >= 16, changed.sum()  # At least 4 x 4 pixels, not a dot.
+  with pytest.raises(ValueError, match="obs must be one of"):
+    jc_env.make("push_box", obs="rgb")
+
+
+def test_custom_observation_function():
+  def observe(env, state, params):
+    return state.world.pos[env.slots_of("box")]
+  env, p = jc_env.make("push_box", obs=observe)
+  assert env.obs_mode == "custom" and env.observation_space(p).shape == (4, 2)
+
+
+# Consistency.
+
+
+def test_reset_level_checks_the_index(push):
+  key = jax.random.key(28)
+  for bad in (3, 7, -1):
+    with pytest.raises(ValueError, match=rf"level {bad} is out of range: this env has 3 levels"):
+      push.env.reset_level(key, push.params, bad)
+  with pytest.raises(TypeError, match="integer"):
+    push.env.reset_level(key, push.params, 1.0)
+  states, _ = push.states([7, -1, 1, 2])  # Traced: clamped and flagged.
+  np.testing.assert_array_equal(np.asarray(states.level)[:4], [2, 0, 1, 2])
+  np.testing.assert_array_equal(np.asarray(states.level_clamped)[:4], [True, True, False, False])
+  state = push.env.reset_level(key, push.params, 1)
+  assert state.replace(t=jnp.int32(5)).t == 5 and state.replace(t=jnp.int32(5)).level == 1
+
+
+X64_SCRIPT = """
+import jax, jax.numpy as jnp
+import jaxchain as jc
+assert jax.config.jax_enable_x64
+env, params = jc.env.make("push_box_discrete")
+key = jax.random.key(0)
+obs, state = env.reset(key, params)
+obs, state, reward, done, info = jax.jit(env.step)(key, state, jnp.int32(2), params)
+assert state.world.pos.dtype == jnp.float64, state.world.pos.dtype
+got = (obs.dtype, reward.dtype, state.ret.dtype, info["episode_return"].dtype,
+       env.action_space(params).sample(key).dtype)
+assert all(d == want for d, want in zip(got, ["float32", "float32", "float32", "float32", "int32"])), got
+print("x64 env ok")
+"""
+
+
+def test_dtypes_under_x64():
+  import os
+  import subprocess
+  import sys
+  environ = {**os.environ, "JAX_ENABLE_X64": "1", "JAX_PLATFORMS": "cpu"}
+  done = subprocess.run([sys.executable, "-c", X64_SCRIPT], capture_output=True, text=True,
+                        env=environ, timeout=600)
+  assert done.returncode == 0, done.stderr[-3000:]
+  assert "x64 env ok" in done.stdout
