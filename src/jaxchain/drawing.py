@@ -41,14 +41,19 @@ Geometry: y points up (row 0 of the image is the top of the view). The view is
 default) it is widened about its centre along one axis to the image's aspect ratio,
 so that pixels are square and a square box looks square.
 
-Cost: O(n H W) per image for `n` body slots (every slot is composited, masked if
-inactive) and O(H W) memory: the per-axis coverages are `[n, H]` and `[n, W]`, and
-a `lax.scan` over the bodies composites them into one `[H, W, 3]` float image (no
-`[n, H, W]` array). Under `vmap` the scan carries one image per frame: `B` worlds x
-`T` steps at `H x W` hold `B T H W 3` floats (64 x 100 frames at 64 x 96 are about
-470 MB). `render_trajectory` therefore renders a clip in chunks of steps
-(`lax.map`), about `CHUNK_PIXELS` pixels at a time, which bounds memory and is 2-3
-times faster than one `vmap` over every frame.
+Cost: O(n H W) per image for `n` body slots (every slot is composited; inactive
+and non-finite ones with zero alpha). Each body's coverage is separable: a row
+coverage `[H]` and a column coverage `[W]`, whose outer product is its alpha, so the
+per-body setup is O(n (H + W)) and the [H, W] work is one blend per body and pixel.
+The blends are fused: up to `GROUP` (20) bodies are composited in one pass over the
+pixels, each pixel kept in registers through the whole chain of "over" operations
+(painter's order, exactly as one body after another), and a world of more bodies
+takes `ceil(n / GROUP)` passes, its frames in cache-sized chunks (`CHUNK_PIXELS`).
+Nothing `[n, H, W]` is ever built. Throughput on 2 CPU cores
+(benchmarks/results/render_throughput.md): at 64 x 64 and 20 body slots, 4-5
+times the frames per CPU-second of the earlier renderer (a `lax.scan` over bodies,
+writing the whole image once per body). `render_trajectory` renders a clip in
+chunks of steps when a frame takes several passes, which bounds memory too.
 """
 
 from __future__ import annotations
@@ -71,11 +76,17 @@ RGB = tuple[int, int, int]
 # Default view margin: a fraction of the larger side of the bodies' extent.
 MARGIN = 0.03
 
-# `render_trajectory` composites about this many pixels at once (frames of all worlds
-# times the steps of a chunk): a float image of 2**19 pixels is 6 MB, small enough to
-# stay in cache while every body is composited into it (measured: 2-3 times faster
-# than rendering every step at once at 64 x 100 frames of 64 x 96).
-CHUNK_PIXELS = 2**19
+# `render` composites this many layers (bodies) in one fused pass over the pixels;
+# a world of more bodies takes ceil(n / GROUP) passes. Measured on XLA:CPU (2 cores,
+# benchmarks/render_throughput.py): a pass of up to ~20 layers keeps each pixel in
+# registers; one pass of 36 or 68 layers ran 2-3 times slower than passes of 12-23.
+GROUP = 20
+
+# When a frame takes several passes, frames are composited in chunks of about this
+# many pixels (`lax.map` over chunks, each `vmap`ped): a float image of 2**16 pixels
+# is 0.8 MB, so it stays in cache from one pass to the next (measured: 1.5-2 times
+# faster than one `vmap` over B = 1024 frames of 64 x 64 at 36-68 bodies).
+CHUNK_PIXELS = 2**16
 
 # The fastest GIF that browsers play at its own speed: they treat delays below 2
 # centiseconds as 10 centiseconds.
@@ -104,6 +115,13 @@ class Palette(NamedTuple):
 PALETTE = Palette()
 
 
+def _drawable(world: World) -> jax.Array:
+  """`[..., n]` bool: active bodies whose centre and half-extents are finite (the
+  others, a NaN body for one, are left out of the picture and of `bounds_of`)."""
+  finite = jnp.all(jnp.isfinite(world.pos) & jnp.isfinite(world.half), axis=-1)
+  return world.active & finite
+
+
 @functools.partial(jax.jit, static_argnames=("margin",))
 def bounds_of(world: World, pos: jax.Array | None = None, margin: float = MARGIN) -> jax.Array:
   """The view that holds every active body: `[4]` `(xmin, ymin, xmax, ymax)`.
@@ -111,8 +129,10 @@ def bounds_of(world: World, pos: jax.Array | None = None, margin: float = MARGIN
   Reduces over every leading axis: for a batch of worlds (or, with `pos`, every step
   of a trajectory) it is one view that holds all of them, so frames share one
   camera. The box of the active bodies is grown on every side by `margin` times
-  its larger side; with no active body it is `(-1, -1, 1, 1)`. Jitted (`margin`
-  static).
+  its larger side; with no active body it is `(-1, -1, 1, 1)`. Bodies whose
+  position or half-extents are not finite (a NaN body, at some step) are left
+  out, and the result is always finite: an extent beyond the float range is
+  clipped to it. Jitted (`margin` static).
 
   Args:
     world: a world, or a batch (`pos` `[..., n, 2]`).
@@ -138,16 +158,17 @@ def bounds_of(world: World, pos: jax.Array | None = None, margin: float = MARGIN
                      f"{world.pos.shape} (expected {lead} + (t,) + {world.pos.shape[-2:]})")
   expand = lambda x: x.reshape(lead + (1,) * extra + x.shape[len(lead):])
   half = jnp.broadcast_to(expand(world.half), pos.shape)
-  active = jnp.broadcast_to(expand(world.active)[..., None], pos.shape)
-  inf = jnp.asarray(jnp.inf, pos.dtype)
+  finite = jnp.all(jnp.isfinite(pos) & jnp.isfinite(half), axis=-1)
+  keep = (jnp.broadcast_to(expand(world.active), pos.shape[:-1]) & finite)[..., None]
+  big = jnp.asarray(jnp.finfo(pos.dtype).max, pos.dtype)
   axes = tuple(range(pos.ndim - 1))
-  lo = jnp.min(jnp.where(active, pos - half, inf), axis=axes)
-  hi = jnp.max(jnp.where(active, pos + half, -inf), axis=axes)
-  any_active = jnp.any(world.active)
-  lo = jnp.where(any_active, lo, -1.0)
-  hi = jnp.where(any_active, hi, 1.0)
-  pad = jnp.where(any_active, margin * jnp.max(hi - lo), 0.0)
-  return jnp.concatenate([lo - pad, hi + pad])
+  lo = jnp.clip(jnp.min(jnp.where(keep, pos - half, big), axis=axes), -big, big)
+  hi = jnp.clip(jnp.max(jnp.where(keep, pos + half, -big), axis=axes), -big, big)
+  any_kept = jnp.any(keep)
+  lo = jnp.where(any_kept, lo, -1.0)
+  hi = jnp.where(any_kept, hi, 1.0)
+  pad = jnp.where(any_kept, margin * 2 * jnp.max(hi / 2 - lo / 2), 0.0)  # No overflow.
+  return jnp.clip(jnp.concatenate([lo - pad, hi + pad]), -big, big)
 
 
 def _check_size(size) -> tuple[int, int]:
@@ -162,38 +183,79 @@ def _check_size(size) -> tuple[int, int]:
   return int(h), int(w)
 
 
+def _concrete(x) -> np.ndarray | None:
+  """`x` as a NumPy array if its value is known on the host (not a tracer)."""
+  if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x)):
+    return None
+  return np.asarray(x)
+
+
+def _check_bounds(bounds, dtype, name: str = "render"):
+  """Shape check, and on concrete input a finiteness check in the world's dtype."""
+  if bounds is None:
+    return None
+  if np.shape(bounds)[-1:] != (4,):
+    raise ValueError(f"{name}: bounds must be (xmin, ymin, xmax, ymax), got shape "
+                     f"{np.shape(bounds)}")
+  value = _concrete(bounds)
+  if value is not None:
+    with np.errstate(over="ignore", invalid="ignore"):
+      cast = value.astype(dtype)
+    if not np.all(np.isfinite(cast)):
+      raise ValueError(f"{name}: bounds must be finite in {np.dtype(dtype).name}, got "
+                       f"{value.tolist()} (omit bounds for the view that holds every finite "
+                       f"body)")
+  return jnp.asarray(bounds, dtype)
+
+
+def _check_player(player, n: int) -> None:
+  """Shape and dtype checks; on a concrete index, a range check."""
+  if player is None:
+    return
+  shape, dtype = np.shape(player), jnp.result_type(player)
+  if dtype == bool:
+    if shape[-1:] != (n,):
+      raise ValueError(f"render: a player mask must have shape ({n},), got {shape}")
+    return
+  if not jnp.issubdtype(dtype, jnp.integer):
+    raise ValueError(f"render: player must be a body index (an integer) or a bool mask of "
+                     f"shape ({n},), got {dtype} {shape}")
+  value = _concrete(player)
+  if value is not None and np.any((value < 0) | (value >= n)):
+    raise ValueError(f"render: player index {value.tolist()} is out of range for a world of "
+                     f"{n} bodies (expected 0 <= player < {n})")
+
+
 def _player_mask(player, n: int) -> jax.Array:
-  """`[n]` bool from `None`, an index or a bool mask."""
+  """`[n]` bool from `None`, an index or a bool mask (an index outside [0, n): none)."""
   if player is None:
     return jnp.zeros(n, bool)
   player = jnp.asarray(player)
   if player.dtype == bool:
-    if player.shape != (n,):
-      raise ValueError(f"render: a player mask must have shape ({n},), got {player.shape}")
     return player
-  if player.ndim != 0 or not jnp.issubdtype(player.dtype, jnp.integer):
-    raise ValueError(f"render: player must be a body index (an integer) or a bool mask of "
-                     f"shape ({n},), got {player.dtype} {player.shape}")
   return jnp.arange(n, dtype=player.dtype) == player
 
 
 def _pixel_edges(bounds: jax.Array, h: int, w: int, keep_aspect: bool, dtype):
   """Edges of the pixel columns (`[W + 1]`, left to right) and rows (`[H + 1]`, top
-  to bottom, decreasing y), and the pixel size along x and y."""
-  bounds = jnp.asarray(bounds, dtype)
-  if bounds.shape != (4,):
-    raise ValueError(f"render: bounds must be (xmin, ymin, xmax, ymax), got shape {bounds.shape}")
+  to bottom, decreasing y), and the pixel size along x and y.
+
+  Free of overflow for any finite bounds: the centre and half-span are formed from
+  halves, and each edge is the centre plus one product, so a view as wide as the
+  float range has finite edges (at worst the outermost edges round to +-inf, which
+  the coverage rule clips) and never NaN ones.
+  """
   lo, hi = bounds[:2], bounds[2:]
-  centre = (lo + hi) / 2
-  span = jnp.abs(hi - lo)
+  centre = lo / 2 + hi / 2
+  half_span = jnp.abs(hi / 2 - lo / 2)
   pixels = jnp.asarray([w, h], dtype)
-  step = span / pixels
+  big = jnp.asarray(jnp.finfo(dtype).max, dtype)
+  step = jnp.minimum(half_span * (2 / pixels), big)
   if keep_aspect:
     step = jnp.broadcast_to(jnp.max(step), (2,))
   step = jnp.where(step > 0, step, jnp.ones((), dtype))  # A degenerate view: 1 unit a pixel.
-  start = centre - step * pixels / 2
-  xs = start[0] + step[0] * jnp.arange(w + 1, dtype=dtype)
-  ys = (start[1] + step[1] * pixels[1]) - step[1] * jnp.arange(h + 1, dtype=dtype)
+  xs = centre[0] + step[0] * (jnp.arange(w + 1, dtype=dtype) - w / 2)
+  ys = centre[1] + step[1] * (h / 2 - jnp.arange(h + 1, dtype=dtype))
   return xs, ys, step
 
 
@@ -204,29 +266,44 @@ def _cover(lo: jax.Array, hi: jax.Array, a: jax.Array, b: jax.Array, step: jax.A
   if antialias:
     inside = jnp.minimum(b[None, :], hi[:, None]) - jnp.maximum(a[None, :], lo[:, None])
     return jnp.clip(inside / step, 0.0, 1.0)
-  c = (a + b)[None, :] / 2
-  return ((c >= lo[:, None]) & (c < hi[:, None])).astype(lo.dtype)
+  c = a / 2 + b / 2
+  return ((c[None, :] >= lo[:, None]) & (c[None, :] < hi[:, None])).astype(lo.dtype)
 
 
-def _render_one(world: World, bounds, player, *, h: int, w: int, antialias: bool,
-                keep_aspect: bool, palette: Palette) -> jax.Array:
-  """`render` of one world (`pos` `[n, 2]`)."""
+def _layers(world: World, bounds, player, *, h: int, w: int, antialias: bool,
+            keep_aspect: bool, palette: Palette):
+  """The layers of one world's picture, in draw order (solid bodies by index, then
+  sensors): per layer the alpha's two separable terms and the colour.
+
+  A layer's alpha at pixel (row r, column c) is `pa[r] * cx[c] - pb[r] * cb[c]`:
+  `fill * cover + outline * ring` with `cover = cy (x) cx` (the box's per-axis
+  coverages) and `ring = cover - cy_in (x) cx_in` (a sensor's outline, the box less
+  the box one pixel smaller on every side), so `pa = (fill + outline) cy` and
+  `pb = outline cy_in`. Bodies left out (inactive, non-finite) have zero alpha.
+
+  Returns:
+    `(pa [n, H], pb [n, H], cx [n, W], cb [n, W], rgb [n, 3])`.
+  """
   n = world.num_bodies
   dtype = world.pos.dtype
+  drawable = _drawable(world)
   if bounds is None:
     bounds = bounds_of(world)
+  else:  # Traced bounds that are not finite (concrete ones raise): the default view.
+    bounds = jnp.where(jnp.all(jnp.isfinite(bounds)), bounds, bounds_of(world))
   xs, ys, step = _pixel_edges(bounds, h, w, keep_aspect, dtype)
-  lo, hi = world.pos - world.half, world.pos + world.half
+  zero = jnp.zeros((), dtype)
+  lo = jnp.where(drawable[:, None], world.pos - world.half, zero)
+  hi = jnp.where(drawable[:, None], world.pos + world.half, zero)
   # Per-axis coverage of each pixel column / row: [n, W], [n, H] (rows: y from ys[i+1]
   # up to ys[i]).
   cx = _cover(lo[:, 0], hi[:, 0], xs[:-1], xs[1:], step[0], antialias)
   cy = _cover(lo[:, 1], hi[:, 1], ys[1:], ys[:-1], step[1], antialias)
-  # A sensor's outline: its coverage less that of the box one pixel smaller on every side.
   cx_in = _cover(lo[:, 0] + step[0], hi[:, 0] - step[0], xs[:-1], xs[1:], step[0], antialias)
   cy_in = _cover(lo[:, 1] + step[1], hi[:, 1] - step[1], ys[1:], ys[:-1], step[1], antialias)
 
   colour = lambda rgb: jnp.asarray(rgb, dtype)
-  sensor = world.sensor & world.active
+  sensor = world.sensor & drawable
   kind = jnp.where(world.inv_mass > 0, 0, 1)  # Movable, immovable.
   kind = jnp.where(world.one_way, 2, kind)
   kind = jnp.where(_player_mask(player, n), 3, kind)
@@ -238,21 +315,76 @@ def _render_one(world: World, bounds, player, *, h: int, w: int, antialias: bool
   rgb = table[kind]  # [n, 3]
   fill = jnp.where(world.sensed, palette.sensed_alpha, palette.sensor_alpha).astype(dtype)
   fill = jnp.where(sensor, fill, jnp.ones((), dtype))
-  fill = jnp.where(world.active, fill, jnp.zeros((), dtype))
-  outline = jnp.where(sensor, 1.0 - fill, jnp.zeros((), dtype))
+  fill = jnp.where(drawable, fill, zero)
+  outline = jnp.where(sensor, 1.0 - fill, zero)
+  pa = (fill + outline)[:, None] * cy
+  pb = outline[:, None] * cy_in
   order = jnp.argsort(sensor, stable=True)  # Solid bodies in index order, then sensors.
-  bodies = jax.tree.map(lambda x: x[order], (cx, cy, cx_in, cy_in, fill, outline, rgb))
+  return jax.tree.map(lambda x: x[order], (pa, pb, cx, cx_in, rgb))
 
-  def composite(image, body):
-    cx, cy, cx_in, cy_in, fill, outline, rgb = body
-    cover = cy[:, None] * cx[None, :]
-    ring = cover - cy_in[:, None] * cx_in[None, :]
-    alpha = fill * cover + outline * ring
-    return image + alpha[..., None] * (rgb[None, None, :] - image), None
 
-  start = jnp.broadcast_to(colour(palette.background), (h, w, 3))
-  image, _ = jax.lax.scan(composite, start, bodies)
+def _groups(n: int) -> tuple[int, int]:
+  """`(groups, size)`: `n` layers composited in `groups` passes of `size` (`<= GROUP`)."""
+  groups = -(-n // GROUP) if n else 1
+  return groups, -(-n // groups) if n else 0
+
+
+def _over(image: jax.Array, group) -> jax.Array:
+  """Composites one group of layers ("over", in order) onto `image` (`[H, W, 3]`).
+
+  The loop runs over the `<= GROUP` slots of one group, a static size fixed by
+  `GROUP`, not by the scene: XLA:CPU fuses the whole chain into one pass over the
+  pixels, each pixel kept in registers while the group's layers are blended into
+  it (a `lax` loop per layer writes the whole image once per layer instead: 4-5
+  times slower, measured in benchmarks/render_throughput.py's docstring).
+  """
+  pa, pb, cx, cb, rgb = group
+  for k in range(pa.shape[0]):
+    alpha = pa[k][:, None] * cx[k][None, :] - pb[k][:, None] * cb[k][None, :]
+    image = image + alpha[..., None] * (rgb[k][None, None, :] - image)
+  return image
+
+
+def _composite(layers, h: int, w: int, palette: Palette, dtype) -> jax.Array:
+  """`uint8[H, W, 3]` of the layers over the background."""
+  n = layers[0].shape[0]
+  image = jnp.broadcast_to(jnp.asarray(palette.background, dtype), (h, w, 3))
+  groups, size = _groups(n)
+  if groups == 1:
+    image = _over(image, layers)
+  else:
+    pad = groups * size - n  # Zero layers: alpha 0 leaves the image as it is, exactly.
+    tables = jax.tree.map(lambda x: jnp.pad(x, [(0, pad)] + [(0, 0)] * (x.ndim - 1)).reshape(
+        (groups, size) + x.shape[1:]), layers)
+
+    def one_group(_, carry):
+      # The group is read with a static index and the tables rolled by one group: a
+      # dynamic index inside the fused pass (scan's) makes it several times slower.
+      image, tables = carry
+      image = _over(image, jax.tree.map(lambda x: x[0], tables))
+      return image, jax.tree.map(lambda x: jnp.roll(x, -1, axis=0), tables)
+
+    image, _ = jax.lax.fori_loop(0, groups, one_group, (image, tables))
   return jnp.round(jnp.clip(image, 0.0, 255.0)).astype(jnp.uint8)
+
+
+def _frame(world: World, bounds, player, *, h: int, w: int, antialias: bool, keep_aspect: bool,
+           palette: Palette) -> jax.Array:
+  """`render` of one world (`pos` `[n, 2]`)."""
+  layers = _layers(world, bounds, player, h=h, w=w, antialias=antialias,
+                   keep_aspect=keep_aspect, palette=palette)
+  return _composite(layers, h, w, palette, world.pos.dtype)
+
+
+def _frames(frame, args, pixels: int, groups: int):
+  """`frame` mapped over the leading axis of `args`: one `vmap` when each frame is
+  one fused pass, else in chunks of about `CHUNK_PIXELS` pixels (`lax.map`), so the
+  images being composited stay in cache between the passes."""
+  count = jax.tree.leaves(args)[0].shape[0]
+  chunk = max(1, CHUNK_PIXELS // pixels)
+  if groups == 1 or chunk >= count:
+    return jax.vmap(frame)(args)
+  return jax.lax.map(frame, args, batch_size=chunk)
 
 
 def _mapped(x, single_ndim: int):
@@ -260,29 +392,48 @@ def _mapped(x, single_ndim: int):
   return None if x is None or jnp.ndim(x) <= single_ndim else 0
 
 
-@functools.partial(jax.jit, static_argnames=("size", "antialias", "keep_aspect", "palette"))
+def _lead(x, lead: tuple[int, ...], core: int):
+  """`x` (`[*prefix of lead, *core]`) broadcast to `[*lead, *core]` and flattened
+  to `[prod(lead), *core]`."""
+  if x is None:
+    return None
+  x = jnp.asarray(x)
+  prefix = x.ndim - core
+  x = x.reshape(x.shape[:prefix] + (1,) * (len(lead) - prefix) + x.shape[prefix:])
+  x = jnp.broadcast_to(x, lead + x.shape[len(lead):])
+  return x.reshape((math.prod(lead),) + x.shape[len(lead):])
+
+
 def render(world: World, size: tuple[int, int] = (96, 160), bounds=None, *, antialias: bool = True,
            player=None, keep_aspect: bool = True, palette: Palette = PALETTE) -> jax.Array:
   """Draws a world (or a batch of worlds) into an RGB image, inside JAX.
 
-  Pure and jitted: `size`, `antialias`, `keep_aspect` and `palette` are static (a
-  new value compiles again), `world`, `bounds` and `player` are traced. It works
-  under `jax.vmap` (over worlds, or over the steps of a trajectory: see
-  `render_trajectory`), and leading batch axes of `world` are mapped for you. The
-  colours, draw order and edge rule are in this module's docstring; the cost is
-  O(n H W).
+  Pure, and jitted inside (`size`, `antialias`, `keep_aspect` and `palette` are
+  static: a new value compiles again; `world`, `bounds` and `player` are traced).
+  It works under `jax.jit` and `jax.vmap` (over worlds, or over the steps of a
+  trajectory: see `render_trajectory`), and leading batch axes of `world` are
+  mapped for you: pass a batch rather than vmapping `render` over a large world
+  (more than `GROUP` bodies) and its frames are composited in cache-sized chunks.
+  The colours, draw order, edge rule and cost are in this module's docstring.
+
+  What is not finite: a body whose position or half-extents are not finite (NaN,
+  inf) is not drawn and does not count for the default bounds; every other body
+  is drawn as usual. Bounds must be finite: concrete ones that are not raise, and
+  traced ones that are not (under `jit`/`vmap`) fall back to the default bounds.
+  Any finite bounds work, up to the float range (no overflow).
 
   Args:
     world: a world (`pos` `[n, 2]`), or a batch (`[..., n, 2]`: each world gets its
       own default bounds).
     size: `(H, W)` of the image in pixels (static).
     bounds: `(xmin, ymin, xmax, ymax)` of the view in world units (`[4]`, or `[...,
-      4]` per world of a batch); default `bounds_of(world)`, the active bodies'
+      4]` per world of a batch); default `bounds_of(world)`, the drawn bodies'
       extent with a small margin (traced).
     antialias: `True` for coverage-blended edges, `False` for crisp ones (pixel
       centre inside the box) (static).
-    player: `None`, the index of the body to colour as the player (an integer), or
-      a `[n]` bool mask of them (`[..., n]` per world of a batch).
+    player: `None`, the index of the body to colour as the player (an integer in
+      `[0, n)`), or a `[n]` bool mask of them (`[..., n]` per world of a batch). A
+      traced index outside `[0, n)` colours no body.
     keep_aspect: widen the view along one axis to the image's aspect ratio, so
       pixels are square (static).
     palette: the colours, a `Palette` (static).
@@ -293,7 +444,9 @@ def render(world: World, size: tuple[int, int] = (96, 160), bounds=None, *, anti
 
   Raises:
     ValueError: for a size that is not two positive integers, bounds not of
-      shape `[4]`, or a player that is neither an index nor a `[n]` bool mask.
+      shape `[4]` or (when concrete) not finite in the world's dtype, or a player
+      that is neither an index nor a `[n]` bool mask, or (when concrete) an index
+      outside `[0, n)`.
 
   Examples:
     >>> import jaxchain as jc
@@ -306,29 +459,38 @@ def render(world: World, size: tuple[int, int] = (96, 160), bounds=None, *, anti
     ([125, 133, 145], [70, 170, 255], [28, 30, 38])
   """
   h, w = _check_size(size)
-  batch = world.pos.ndim - 2
-  if batch < 0:
+  if world.pos.ndim < 2:
     raise ValueError(f"render: expected pos of shape (..., n, 2), got {world.pos.shape}")
-  if bounds is not None:
-    bounds = jnp.asarray(bounds, world.pos.dtype)
-  fn = functools.partial(_render_one, h=h, w=w, antialias=antialias, keep_aspect=keep_aspect,
-                         palette=palette)
-  player_ndim = 1 if player is not None and jnp.asarray(player).dtype == bool else 0
-  return _map_leading(fn, batch, player_ndim)(world, bounds, player)
+  bounds = _check_bounds(bounds, world.pos.dtype)
+  _check_player(player, world.pos.shape[-2])
+  lead = world.pos.shape[:-2]
+  for name, x, core in (("bounds", bounds, 1), ("player", player, None)):
+    if x is None:
+      continue
+    core = core if core is not None else int(jnp.result_type(x) == bool)
+    axes = np.shape(x)[:len(np.shape(x)) - core]
+    if axes != lead[:len(axes)]:
+      raise ValueError(f"render: {name} of shape {np.shape(x)} does not match the world's "
+                       f"batch axes {lead} (give one for all worlds, or one per world)")
+  return _render(world, (h, w), bounds, player, antialias=antialias, keep_aspect=keep_aspect,
+                 palette=palette)
 
 
-def _map_leading(fn, depth: int, player_ndim: int):
-  """`fn(world, bounds, player)` vmapped over `depth` leading axes of the world;
-  `bounds` and `player` are mapped along with it where they have those axes."""
-  if depth == 0:
-    return fn
-  inner = _map_leading(fn, depth - 1, player_ndim)
-  return lambda world, bounds, player: jax.vmap(
-      inner, in_axes=(0, _mapped(bounds, 1), _mapped(player, player_ndim)))(world, bounds, player)
+@functools.partial(jax.jit, static_argnames=("size", "antialias", "keep_aspect", "palette"))
+def _render(world: World, size, bounds, player, *, antialias, keep_aspect, palette):
+  h, w = size
+  frame = functools.partial(_frame, h=h, w=w, antialias=antialias, keep_aspect=keep_aspect,
+                            palette=palette)
+  lead = world.pos.shape[:-2]
+  if not lead:
+    return frame(world, bounds, player)
+  player_core = 1 if player is not None and jnp.asarray(player).dtype == bool else 0
+  flat = jax.tree.map(lambda x: x.reshape((math.prod(lead),) + x.shape[len(lead):]), world)
+  args = (flat, _lead(bounds, lead, 1), _lead(player, lead, player_core))
+  images = _frames(lambda a: frame(*a), args, h * w, _groups(world.num_bodies)[0])
+  return images.reshape(lead + images.shape[1:])
 
 
-@functools.partial(jax.jit, static_argnames=("size", "antialias", "keep_aspect", "palette",
-                                             "batch_size"))
 def render_trajectory(world: World, traj, size: tuple[int, int] = (96, 160), bounds=None, *,
                       antialias: bool = True, player=None, keep_aspect: bool = True,
                       palette: Palette = PALETTE, batch_size: int | None = None) -> jax.Array:
@@ -350,10 +512,10 @@ def render_trajectory(world: World, traj, size: tuple[int, int] = (96, 160), bou
     bounds: `[4]` view shared by every frame (`[b, 4]`: one per world); default
       the extent of the whole trajectory.
     batch_size: how many steps to render at once (`lax.map` over chunks of
-      steps, each chunk `vmap`ped; static). The default picks it so that about
-      `CHUNK_PIXELS` (2**19) pixels, of all worlds of a batch, are composited at
-      once: memory stays bounded on long clips, and it is faster than rendering
-      every step at once (the image being composited stays in cache).
+      steps, each chunk `vmap`ped; static). The default renders every step at
+      once when a frame is one fused pass (at most `GROUP` bodies: no float image
+      is kept), else about `CHUNK_PIXELS` (2**16) pixels, of all worlds of a
+      batch, at a time, so the images being composited stay in cache.
 
   Returns:
     `uint8[t, H, W, 3]`, or `uint8[b, t, H, W, 3]` for a batch.
@@ -370,6 +532,17 @@ def render_trajectory(world: World, traj, size: tuple[int, int] = (96, 160), bou
     >>> frames.shape, frames.dtype
     ((30, 24, 32, 3), dtype('uint8'))
   """
+  _check_size(size)
+  bounds = _check_bounds(bounds, world.pos.dtype, "render_trajectory")
+  _check_player(player, world.pos.shape[-2])
+  return _render_trajectory(world, traj, tuple(size), bounds, antialias=antialias, player=player,
+                            keep_aspect=keep_aspect, palette=palette, batch_size=batch_size)
+
+
+@functools.partial(jax.jit, static_argnames=("size", "antialias", "keep_aspect", "palette",
+                                             "batch_size"))
+def _render_trajectory(world: World, traj, size, bounds, *, antialias, player, keep_aspect,
+                       palette, batch_size):
   h, w = _check_size(size)
   batch = world.pos.ndim - 2
   if batch not in (0, 1):
@@ -380,13 +553,12 @@ def render_trajectory(world: World, traj, size: tuple[int, int] = (96, 160), bou
       traj.pos.shape[-2:] != world.pos.shape[-2:]):
     raise ValueError(f"render_trajectory: traj.pos {traj.pos.shape} does not match the world "
                      f"(pos {world.pos.shape}): expected {want} with None the number of steps")
-  if bounds is not None:
-    bounds = jnp.asarray(bounds, world.pos.dtype)
   flags = {name: getattr(traj, name, None) for name in ("crushed", "sensed")}
   flags = {name: x for name, x in flags.items() if x is not None}
   player_ndim = 1 if player is not None and jnp.asarray(player).dtype == bool else 0
-  frame = functools.partial(_render_one, h=h, w=w, antialias=antialias, keep_aspect=keep_aspect,
+  frame = functools.partial(_frame, h=h, w=w, antialias=antialias, keep_aspect=keep_aspect,
                             palette=palette)
+  groups = _groups(world.num_bodies)[0]
 
   def clip(world, pos, flags, bounds, player):
     if bounds is None:
@@ -397,7 +569,10 @@ def render_trajectory(world: World, traj, size: tuple[int, int] = (96, 160), bou
       return frame(dataclasses.replace(world, pos=step_pos, **step_flags), bounds, player)
 
     steps = pos.shape[0]
-    chunk = batch_size or max(1, CHUNK_PIXELS // (frames_per_step * h * w))
+    if batch_size is None and groups == 1:  # One fused pass a frame: nothing to keep in cache.
+      chunk = steps
+    else:
+      chunk = batch_size or max(1, CHUNK_PIXELS // (frames_per_step * h * w))
     if chunk >= steps:
       return jax.vmap(one)((pos, flags))
     return jax.lax.map(one, (pos, flags), batch_size=chunk)
