@@ -215,6 +215,156 @@ def test_bad_arguments_are_clear_errors(kwargs, message):
     jc.render(WORLD, **kwargs)
 
 
+def _reference(world, size, bounds, player=None, antialias=True):
+  """The documented rule in float64 NumPy, one body after another ("over", solid
+  bodies in index order, then sensors): the slow twin of `render`."""
+  h, w = size
+  x0, y0, x1, y1 = np.asarray(bounds, np.float64)
+  step = max((x1 - x0) / w, (y1 - y0) / h)  # keep_aspect
+  cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+  xs = cx + step * (np.arange(w + 1) - w / 2)
+  ys = cy + step * (h / 2 - np.arange(h + 1))
+  pos, half = np.asarray(world.pos, np.float64), np.asarray(world.half, np.float64)
+  active, sensor = np.asarray(world.active), np.asarray(world.sensor) & np.asarray(world.active)
+  sensed, crushed = np.asarray(world.sensed), np.asarray(world.crushed)
+  kinds = [P.movable, P.immovable, P.one_way, P.player, P.crushed, P.sensor, P.sensed]
+
+  def cover(lo, hi, a, b):
+    if antialias:
+      return np.clip((np.minimum(b, hi) - np.maximum(a, lo)) / step, 0, 1)
+    c = (a + b) / 2
+    return ((c >= lo) & (c < hi)).astype(float)
+
+  image = np.broadcast_to(np.asarray(P.background, float), (h, w, 3)).copy()
+  for i in sorted(range(len(pos)), key=lambda i: sensor[i]):
+    if not active[i]:
+      continue
+    lo, hi = pos[i] - half[i], pos[i] + half[i]
+    box = np.outer(cover(lo[1], hi[1], ys[1:], ys[:-1]), cover(lo[0], hi[0], xs[:-1], xs[1:]))
+    inner = np.outer(cover(lo[1] + step, hi[1] - step, ys[1:], ys[:-1]),
+                     cover(lo[0] + step, hi[0] - step, xs[:-1], xs[1:]))
+    kind = 1 if np.asarray(world.inv_mass)[i] == 0 else 0
+    kind = 2 if np.asarray(world.one_way)[i] else kind
+    kind = 3 if player is not None and i == player else kind
+    kind = 4 if crushed[i] else kind
+    fill = 1.0
+    if sensor[i]:
+      kind, fill = (6, P.sensed_alpha) if sensed[i] else (5, P.sensor_alpha)
+    alpha = fill * box + (1 - fill) * (box - inner) if sensor[i] else box
+    image += alpha[..., None] * (np.asarray(kinds[kind], float) - image)
+  return np.round(np.clip(image, 0, 255)).astype(np.uint8)
+
+
+def test_one_pass_equals_the_rule_body_after_body(image, crisp):
+  np.testing.assert_array_equal(image, _reference(WORLD, SIZE, BOUNDS, player=PLAYER))
+  np.testing.assert_array_equal(crisp, _reference(WORLD, SIZE, BOUNDS, PLAYER, antialias=False))
+
+
+def _crowd(k=4, n=45, seed=0):
+  """`k` worlds of `n` overlapping boxes (more than `drawing.GROUP`: several passes),
+  some immovable, one-way, sensors, sensed, crushed or inactive (host arrays)."""
+  rng = np.random.default_rng(seed)
+  pick = lambda p: rng.random((k, n)) < p
+  mass = np.where(pick(0.3), INF, 1.0)
+  worlds = [jc.World.create(rng.uniform(0, 10, (n, 2)), rng.uniform(0.05, 2.0, (n, 2)), mass[b],
+                            active=~pick(0.1)[b], one_way=pick(0.1)[b], sensor=pick(0.15)[b])
+            for b in range(k)]
+  batch = jax.tree.map(lambda *x: np.stack([np.asarray(v) for v in x]), *worlds)
+  return dataclasses.replace(batch, sensed=pick(0.5), crushed=pick(0.1))
+
+
+@pytest.mark.parametrize("antialias", [True, False])
+def test_several_passes_equal_the_rule_body_after_body(antialias):
+  crowd = _crowd()
+  assert crowd.num_bodies > drawing.GROUP
+  size, bounds = (40, 40), (0.0, 0.0, 10.0, 10.0)
+  images = np.asarray(jc.render(crowd, size, bounds, player=3, antialias=antialias))
+  for b in range(len(images)):
+    want = _reference(_take(crowd, b), size, bounds, player=3, antialias=antialias)
+    assert np.abs(images[b].astype(int) - want).max() <= 1  # float32 against float64.
+    assert np.mean(images[b] != want) < 0.01
+
+
+def test_a_batch_in_chunks_equals_each_world_alone():
+  crowd = _crowd(k=6)
+  size = (128, 128)  # drawing.CHUNK_PIXELS // (128 * 128) = 4 frames a chunk: 4 + 2.
+  assert drawing.CHUNK_PIXELS // (size[0] * size[1]) < 6
+  images = np.asarray(jc.render(crowd, size, player=np.arange(6)))
+  for b in (0, 5):
+    np.testing.assert_array_equal(images[b], jc.render(_take(crowd, b), size, player=b))
+
+
+# What is not finite (issue 18): never an all-black frame, never a silent wrong answer.
+
+
+def _with_nan_box():
+  pos = np.array(WORLD.pos)
+  pos[BOX] = np.nan
+  return dataclasses.replace(WORLD, pos=pos)  # As a blown-up step leaves it (replace checks).
+
+
+def test_a_non_finite_body_is_left_out_and_the_rest_is_drawn(image):
+  nan_box = _with_nan_box()
+  im = np.asarray(jc.render(nan_box, SIZE, BOUNDS, player=PLAYER))
+  np.testing.assert_array_equal(im[3, 5], P.background)  # The NaN box is not drawn...
+  keep = np.ones(im.shape[:2], bool)
+  keep[:8, :10] = False  # ...and everything away from where it was is as before.
+  np.testing.assert_array_equal(im[keep], image[keep])
+  # Default bounds: those of the finite bodies (the NaN one is left out, like an inactive one).
+  gone = WORLD.replace(active=np.asarray(WORLD.active) & (np.arange(8) != BOX))
+  np.testing.assert_array_equal(drawing.bounds_of(nan_box), drawing.bounds_of(gone))
+  assert np.isfinite(np.asarray(drawing.bounds_of(nan_box))).all()
+  np.testing.assert_array_equal(jc.render(nan_box, SIZE, player=PLAYER),
+                                jc.render(gone, SIZE, player=PLAYER))
+
+
+def test_bounds_as_wide_as_the_float_range_do_not_overflow():
+  # The span (6e38) overflows float32; every body is far below a pixel: all background.
+  im = np.asarray(jc.render(WORLD, (4, 4), (-3e38, -3e38, 3e38, 3e38)))
+  np.testing.assert_array_equal(im, np.broadcast_to(P.background, (4, 4, 3)))
+  # A body as large as the float range fills the view around it.
+  huge = jc.World.create([[0.0, 0.0]], [[1.5e38, 1.5e38]], INF)
+  im = np.asarray(jc.render(huge, (4, 4)))
+  np.testing.assert_array_equal(im[1:3, 1:3], np.broadcast_to(P.immovable, (2, 2, 3)))
+  assert np.isfinite(np.asarray(drawing.bounds_of(huge))).all()
+
+
+@pytest.mark.parametrize("bounds", [(0.0, 0.0, INF, 32.0), (float("nan"), 0.0, 48.0, 32.0),
+                                    (0.0, 0.0, 1e39, 32.0)])  # 1e39 is inf in float32.
+def test_concrete_bounds_that_are_not_finite_raise(bounds):
+  with pytest.raises(ValueError, match=r"bounds must be finite in float32"):
+    jc.render(WORLD, SIZE, bounds)
+  with pytest.raises(ValueError, match=r"render_trajectory: bounds must be finite"):
+    jc.render_trajectory(WORLD, jc.Trajectory(
+        pos=np.asarray(WORLD.pos)[None], vel=np.zeros((1, 8, 2), np.float32)), SIZE, bounds)
+
+
+def test_traced_bounds_that_are_not_finite_fall_back_to_the_default_view():
+  draw = jax.jit(lambda b: jc.render(WORLD, SIZE, b, player=PLAYER))
+  fallback = np.asarray(draw(jnp.asarray([0.0, 0.0, jnp.nan, 32.0])))
+  np.testing.assert_array_equal(fallback, jc.render(WORLD, SIZE, player=PLAYER))
+
+
+@pytest.mark.parametrize("player", [8, -1, 100, np.int32(8), np.array([0, 9, 1])])
+def test_a_concrete_player_index_out_of_range_raises(player):
+  world = _batch() if np.ndim(player) else WORLD
+  with pytest.raises(ValueError, match=r"player index .* out of range for a world of 8 bodies"):
+    jc.render(world, SIZE, BOUNDS, player=player)
+
+
+def test_a_traced_player_index_out_of_range_colours_no_body():
+  draw = jax.jit(lambda p: jc.render(WORLD, SIZE, BOUNDS, player=p))
+  np.testing.assert_array_equal(draw(jnp.int32(8)), jc.render(WORLD, SIZE, BOUNDS))
+
+
+@pytest.mark.parametrize("kwargs", [dict(bounds=np.zeros((2, 4), np.float32)),
+                                    dict(player=np.zeros(2, np.int32)),
+                                    dict(player=np.zeros((2, 8), bool))])
+def test_per_world_arguments_must_match_the_batch(kwargs):
+  with pytest.raises(ValueError, match=r"does not match the world's batch axes \(3,\)"):
+    jc.render(_batch(), (4, 4), **kwargs)
+
+
 def _frames(t=5):
   """`t` distinct 8 x 12 frames: frame k has its first k + 1 columns white."""
   frames = np.zeros((t, 8, 12, 3), np.uint8)
