@@ -373,3 +373,109 @@ def test_swept_overlap_of_a_straight_motion(begin, end, want):
   e = [jnp.float32(x) for x in end]
   r = [jnp.float32(0.25), jnp.float32(0.25)]
   assert bool(jc.flags._swept_overlap(b, e, r)) is want
+
+
+# --- One-way bodies under crushes and margin snaps (issue 18, items 4 and 5) -------------
+
+LEDGE = dict(pos=[0.0, -0.1], half=[3.0, 0.1], mass=INF, one_way=True)  # Top at y = 0.
+ONE_WAY_SCENES = {
+    # A box on a one-way ledge under a ceiling descending at 1 u/s (its bottom at y = 1).
+    "crush_on_ledge": world(body([0.0, 0.5], 0.5), LEDGE,
+                            body([0.0, 1.5], [3.0, 0.5], INF, vel=[0.0, -1.0])),
+    # A box on a one-way elevator (top at y = 0) rising at 1 u/s into a ceiling at y = 1.5.
+    "crush_on_elevator": world(body([0.0, 0.5], 0.5), dict(LEDGE, half=[2.0, 0.1], vel=[0.0, 1.0]),
+                               body([0.0, 2.0], [5.0, 0.5], INF)),
+    # A box of mass 80 rising at 0.3 with its bottom 0.03 below a one-way top (the margin).
+    "rising_in_margin": world(body([0.0, 0.47], 0.5, 80.0, vel=[0.0, 0.3]), LEDGE),
+    # The same box coming down with its bottom 0.02 below the top: it lands on it.
+    "landing_in_margin": world(body([0.0, 0.48], 0.5, 80.0, vel=[0.0, -0.3]), LEDGE),
+}
+T_CRUSH = 90
+
+
+@pytest.fixture(scope="module")
+def one_way_runs():
+  """Every one-way scene's `(start, trajectory)`, from one compiled, vmapped rollout."""
+  worlds = jc.stack(list(ONE_WAY_SCENES.values()))
+  run = jax.jit(jax.vmap(lambda w: jc.rollout(w, CFG, T_CRUSH, record=("crushed", "status"))[1]))
+  traj = run(worlds)
+  pick = lambda tree, b: jax.tree.map(lambda x: np.asarray(x[b]), tree)
+  return {name: (w, pick(traj, b)) for b, (name, w) in enumerate(ONE_WAY_SCENES.items())}
+
+
+def _energy(world, pos, vel):
+  inv = np.asarray(world.inv_mass, np.float64)
+  m = np.where(inv > 0, 1.0 / np.where(inv > 0, inv, 1.0), 0.0) * np.asarray(world.active)
+  v, p = np.asarray(vel, np.float64), np.asarray(pos, np.float64)
+  return np.sum(0.5 * m * np.sum(v * v, axis=-1), axis=-1) + 9.81 * np.sum(m * p[..., 1], axis=-1)
+
+
+def test_box_crushed_onto_a_one_way_ledge_stays_centred_and_never_drops(one_way_runs):
+  _, traj = one_way_runs["crush_on_ledge"]
+  k = np.arange(1, T_CRUSH + 1)
+  ceiling = 1.0 - k * DT  # Bottom face of the ceiling; the ledge's top is at 0.
+  y = traj.pos[:, 0, 1]
+  meet = 60  # The faces meet after 60 steps.
+  # Centred between the two faces in every step of the squeeze: the crush rule's equal
+  # split, and the ledge holds the box however deep it is pressed into it.
+  np.testing.assert_allclose(y[:meet], ceiling[:meet] / 2, atol=2e-5)
+  assert traj.crushed[:meet, 0].all()
+  assert traj.status[meet - 1] & jc.status.CRUSHED
+  np.testing.assert_allclose(traj.vel[:meet, 0, 1], -0.5, atol=1e-5)  # The mean of its crushers.
+  assert np.all(np.isfinite(traj.pos))
+
+
+def test_box_on_a_one_way_elevator_rising_into_a_ceiling_stays_between(one_way_runs):
+  _, traj = one_way_runs["crush_on_elevator"]
+  k = np.arange(1, T_CRUSH + 1)
+  lift = k * DT  # The elevator's top; the ceiling's bottom is at 1.5.
+  y = traj.pos[:, 0, 1]
+  np.testing.assert_allclose(y[:29], lift[:29] + 0.5, atol=2e-5)  # Riding it.
+  np.testing.assert_allclose(y[31:89], (lift[31:89] + 1.5) / 2, atol=2e-5)  # Centred.
+  assert traj.crushed[31:89, 0].all() and not traj.crushed[:29, 0].any()
+  assert np.all((y[:89] > lift[:89]) & (y[:89] < 1.5))  # Never drops out, never passes.
+
+
+def test_box_rising_within_the_one_way_margin_is_not_lifted_onto_it(one_way_runs):
+  w, traj = one_way_runs["rising_in_margin"]
+  vy = 0.3 - 9.81 * DT
+  # Free flight in the first step: no snap onto the ledge (it was +20.7 J).
+  np.testing.assert_allclose(traj.pos[0, 0, 1], 0.47 + vy * DT, atol=1e-6)
+  np.testing.assert_allclose(traj.vel[0, 0, 1], vy, atol=1e-6)
+  e0, e1 = _energy(w, w.pos, w.vel), _energy(w, traj.pos[0], traj.vel[0])
+  assert e1 <= e0 + 1e-3, e1 - e0
+  assert int(traj.status[0]) == 0
+
+
+def test_one_way_snaps_are_counted_as_penetration_and_bounded_by_it(one_way_runs):
+  # Every step of both margin scenes: the energy gained is at most m g times the
+  # penetration at the start (`metrics.max_penetration` counts a sink within the
+  # one-way margin); the snap happens only to a body that is not rising.
+  for name in ("rising_in_margin", "landing_in_margin"):
+    w, traj = one_way_runs[name]
+    pos = np.concatenate([np.asarray(w.pos)[None], traj.pos])
+    vel = np.concatenate([np.asarray(w.vel)[None], traj.vel])
+    e = _energy(w, pos, vel)
+    pen = np.array([float(jc.metrics.max_penetration(w.replace(pos=jnp.asarray(p)))) for p in pos[:6]])
+    for t in range(5):
+      assert e[t + 1] - e[t] <= 80.0 * 9.81 * pen[t] + 1e-3, (name, t, e[t + 1] - e[t], pen[t])
+    np.testing.assert_allclose(traj.pos[-1, 0, 1], 0.5, atol=1e-5)  # Both end on the ledge.
+  w, _ = one_way_runs["landing_in_margin"]
+  np.testing.assert_allclose(float(jc.metrics.max_penetration(w)), 0.02, atol=1e-6)
+
+
+def test_reference_mirrors_the_one_way_rule(one_way_runs):
+  exact = CFG.replace(iterations=3, depth=12)
+  step = jax.jit(lambda w: jc.step(w, exact))
+  for name in ONE_WAY_SCENES:
+    w = ONE_WAY_SCENES[name]
+    n = int(np.sum(np.asarray(w.active)))
+    inv = np.asarray(w.inv_mass, np.float64)[:n]
+    mass = np.where(inv > 0, 1.0 / np.where(inv > 0, inv, 1.0), INF)
+    pos, vel = np.asarray(w.pos, np.float64)[:n], np.asarray(w.vel, np.float64)[:n]
+    for _ in range(40):
+      pos, vel = jc.reference.step(pos, vel, np.asarray(w.half)[:n], mass,
+                                   one_way=np.asarray(w.one_way)[:n])
+      w = step(w)
+      np.testing.assert_allclose(np.asarray(w.pos)[:n], pos, atol=2e-5, err_msg=name)
+      np.testing.assert_allclose(np.asarray(w.vel)[:n], vel, atol=2e-4, err_msg=name)

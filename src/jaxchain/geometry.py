@@ -184,8 +184,12 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
 
 # A body came down onto a one-way body when, at the start of the step, its bottom was
 # at or above the one-way body's top, up to this fraction of the pair's summed
-# half-heights (resting contacts sit a rounding error inside).
+# half-heights (resting contacts sit a rounding error inside), and it was not rising
+# relative to it.
 ONE_WAY_MARGIN = 0.05
+# "Rising" relative to a one-way body: moving up relative to it faster than this (units
+# per second), so float rounding of a resting body's velocity never lets it through.
+ONE_WAY_RISE = 1e-6
 
 
 @jax.tree_util.register_dataclass
@@ -197,20 +201,44 @@ class OneWay:
     one_way: jump-through bodies (`World.one_way`, active ones).
     solid: immovable bodies that are not one-way: walls and floors. They block a
       one-way body on every side (a movable one-way crate rests on the floor).
+    vel: optional `[n, 2]` velocities at the start of the pass: a body rising
+      relative to a one-way body is not coming down onto it (`_one_way_rule`). None
+      (`jaxchain.resolve`, no velocities): positions alone decide.
   """
 
   one_way: jax.Array
   solid: jax.Array
+  vel: jax.Array | None = None
 
 
 def _one_way_rule(ref: jax.Array, half: jax.Array, cand: Candidates, ow: OneWay,
                   hy: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
   """Which pairs with a one-way member are contacts, `[n, m]` each.
 
-  A one-way body blocks only bodies that come down onto it from above: those whose
-  bottom was at or above its top at `ref` (the start of the step). It lets the
-  others pass, from below and from the sides; solid immovable bodies block it like
-  any body. Two one-way bodies meet when one came down onto the other.
+  A one-way body blocks only bodies that come down onto it from above, judged at `ref`
+  (the start of the step) and from the velocities `ow.vel`. A body i comes down onto
+  a one-way body j when
+
+  * its bottom is at or above j's top; or
+  * its bottom is below j's top by at most `ONE_WAY_MARGIN` of the summed
+    half-heights and i is not rising relative to j (by more than `ONE_WAY_RISE`): a
+    resting contact
+    a rounding error inside. A body rising through j from below is not lifted onto it
+    (issue 18: a box rising at 0.3 with its bottom 0.03 below the top was lifted onto
+    it, +20.7 J in one step); or
+  * it is *pressed* into j (a crush sinks a body deeper than the margin): its centre
+    is above j's top, it is not rising relative to j, and it sinks below j's top by at
+    most the margin plus its press, the deepest overlap along y (the axis of smaller
+    overlap) of a body above it that is not one-way. The crush rule splits the overlap
+    of a crushed body equally between its two sides, so a body crushed onto a one-way
+    ledge overlaps the ceiling as deep as it sinks into the ledge: the ledge keeps
+    holding it, and it stays between the two until their faces meet (it never drops
+    through).
+
+  It lets the others pass, from below and from the sides; solid immovable bodies block
+  it like any body. Two one-way bodies meet when one came down onto the other. Every
+  test reads only the pair, its candidates and the start of the step: order-independent
+  and stateless.
 
   Returns:
     `(admitted, vertical, upward)`: the pair may be a contact; its contact axis is y
@@ -219,9 +247,28 @@ def _one_way_rule(ref: jax.Array, half: jax.Array, cand: Candidates, ow: OneWay,
   col = lambda x: x[:, 1][:, None]
   partner = lambda x: cand.gather(x[:, 1])
   margin = ONE_WAY_MARGIN * hy
-  i_above = col(ref) - col(half) >= partner(ref) + partner(half) - margin
-  j_above = partner(ref) - partner(half) >= col(ref) + col(half) - margin
+  bottom_i, top_i = col(ref) - col(half), col(ref) + col(half)
+  bottom_j, top_j = partner(ref) - partner(half), partner(ref) + partner(half)
   ow_i, ow_j = ow.one_way[:, None], cand.gather(ow.one_way)
+  # Pressed from above: a body that is not one-way overlaps it from above by more than
+  # the margin, along y (the axis of smaller overlap).
+  dx, dy = cand.gather(ref[:, 0]) - ref[:, 0][:, None], partner(ref) - col(ref)
+  ox = half[:, 0][:, None] + cand.gather(half[:, 0]) - jnp.abs(dx)
+  oy = hy - jnp.abs(dy)
+  from_above = cand.mask & ~ow_j & (dy > 0) & (ox > 0) & (oy > 0) & (oy < ox)
+  press = jnp.max(jnp.where(from_above, oy, 0.0), axis=-1, initial=0.0)  # [n]
+  press_i, press_j = press[:, None], cand.gather(press)
+  if ow.vel is None:
+    rising_i = rising_j = jnp.zeros(dy.shape, bool)
+  else:
+    rel = partner(ow.vel) - col(ow.vel)  # j's velocity along y relative to i's.
+    rising_i, rising_j = rel < -ONE_WAY_RISE, rel > ONE_WAY_RISE
+  sunk_i = (bottom_i >= top_j - margin) | ((col(ref) > top_j)
+                                           & (bottom_i >= top_j - margin - press_i))
+  sunk_j = (bottom_j >= top_i - margin) | ((partner(ref) > top_i)
+                                           & (bottom_j >= top_i - margin - press_j))
+  i_above = (bottom_i >= top_j) | (~rising_i & sunk_i)
+  j_above = (bottom_j >= top_i) | (~rising_j & sunk_j)
   solid_i, solid_j = ow.solid[:, None], cand.gather(ow.solid)
   admitted = jnp.where(ow_i & ow_j, i_above | j_above,
                        (~ow_j | solid_i | i_above) & (~ow_i | solid_j | j_above))

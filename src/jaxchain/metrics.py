@@ -11,16 +11,27 @@ from jaxchain.world import World
 
 def penetration(world: World) -> jax.Array:
   """`[n, n]` penetration depth of each pair that can be resolved: both active, at
-  least one movable, neither a sensor nor one-way (they may overlap by design), and
-  in layers that collide; 0 elsewhere. Depth is the overlap along the axis of
-  smaller overlap, clipped at 0. Dense O(n^2)."""
+  least one movable, neither a sensor, and in layers that collide; 0 elsewhere.
+  Depth is the overlap along the axis of smaller overlap, clipped at 0. A pair with
+  a one-way member and no solid one (a one-way body blocks only what comes down onto
+  it: `geometry.ONE_WAY_MARGIN`) counts with the upper body's sink below the one-way
+  top where the one-way rule lifts it out: at most the margin (deeper sinks pass
+  through, or are crushes, flagged). Dense O(n^2)."""
   pos, half = world.pos, world.half
   o = geometry.overlap(pos[:, None, :], half[:, None, :], pos[None], half[None])
   depth = jnp.maximum(jnp.minimum(o[..., 0], o[..., 1]), 0.0)
   pair = world.active[:, None] & world.active[None, :] & ~jnp.eye(pos.shape[0], dtype=bool)
   pair &= world.movable[:, None] | world.movable[None, :]
-  pair &= ~world.one_way[:, None] & ~world.one_way[None, :]
   pair = flags.admit(geometry.Candidates(None, pair), world, layers=True, sensors=True).mask
+  solid = world.active & (world.inv_mass == 0) & ~world.one_way
+  vertical = ((world.one_way[:, None] | world.one_way[None, :])
+              & ~solid[:, None] & ~solid[None, :])
+  # i above j: i's bottom below j's top by `sink`; one pair entry per orientation.
+  sink = (pos[None, :, 1] + half[None, :, 1]) - (pos[:, None, 1] - half[:, None, 1])
+  margin = geometry.ONE_WAY_MARGIN * (half[:, None, 1] + half[None, :, 1])
+  above = pos[:, None, 1] > pos[None, :, 1]
+  lifted = jnp.where(above & (o[..., 0] > 0) & (sink > 0) & (sink <= margin), sink, 0.0)
+  depth = jnp.where(vertical, jnp.maximum(lifted, lifted.T), depth)
   return jnp.where(pair, depth, 0.0)
 
 

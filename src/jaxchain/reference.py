@@ -35,18 +35,26 @@ import numpy as np
 
 SKIN = 1e-4
 TOL = 1e-9  # Penetration below this counts as resolved.
+# The one-way rule's constants, as `jaxchain.geometry` has them (this module imports
+# nothing but NumPy): a margin, a fraction of the two half-heights, and a speed.
+ONE_WAY_MARGIN = 0.05
+ONE_WAY_RISE = 1e-6
 
 
 class _Scene:
   """Positions being resolved, with the contact geometry of the seed."""
 
-  def __init__(self, pos, half, mass, skin, start=None):
+  def __init__(self, pos, half, mass, skin, start=None, one_way=None, vel=None):
     self.pos = np.array(pos, dtype=np.float64)
     self.half = np.asarray(half, dtype=np.float64)
     self.mass = np.asarray(mass, dtype=np.float64)
     self.skin = skin
     self.start = None if start is None else np.asarray(start, dtype=np.float64)
     self.n = len(self.pos)
+    # One-way bodies (`admits`); solid: immovable and not one-way.
+    self.one_way = np.zeros(self.n, bool) if one_way is None else np.asarray(one_way, bool)
+    self.solid = np.isinf(self.mass) & ~self.one_way
+    self.vel = None if vel is None else np.asarray(vel, dtype=np.float64)
 
   def contact(self, a: int, b: int):
     """(axis, sign, overlap along axis, overlap along the other axis) from a to b:
@@ -83,7 +91,52 @@ class _Scene:
       sign = 1.0
     else:
       sign = -1.0
+    if self.vertical(a, b):  # One-way pairs meet along y, the upper body above.
+      axis, sign = 1, (1.0 if self.came_down(b, a) else -1.0)
     return axis, sign, o[axis], o[1 - axis]
+
+  def vertical(self, a: int, b: int) -> bool:
+    """A pair with a one-way member and no solid one: the one-way rule decides it."""
+    return bool((self.one_way[a] or self.one_way[b]) and not (self.solid[a] or self.solid[b]))
+
+  def admits(self, a: int, b: int) -> bool:
+    """The one-way rule (`jaxchain.geometry._one_way_rule`): a one-way body blocks only
+    a body that came down onto it (`came_down`) or a solid body; two one-way bodies
+    meet when one came down onto the other; other pairs always meet."""
+    if self.one_way[a] and self.one_way[b]:
+      return self.came_down(a, b) or self.came_down(b, a)
+    ok_a = not self.one_way[b] or self.solid[a] or self.came_down(a, b)
+    ok_b = not self.one_way[a] or self.solid[b] or self.came_down(b, a)
+    return bool(ok_a and ok_b)
+
+  def came_down(self, i: int, j: int) -> bool:
+    """Whether body i came down onto body j, judged at the start (the current
+    positions without one) and from the velocities: i's bottom is at or above j's top;
+    or i is not rising relative to j (by more than `ONE_WAY_RISE`) and its bottom is
+    below j's top by at most the margin (`ONE_WAY_MARGIN` of the two half-heights), or,
+    with i's centre above j's top, by at most the margin plus i's press (`press`)."""
+    ref = self.pos if self.start is None else self.start
+    bottom, top = ref[i, 1] - self.half[i, 1], ref[j, 1] + self.half[j, 1]
+    if bottom >= top:
+      return True
+    if self.vel is not None and self.vel[i, 1] - self.vel[j, 1] > ONE_WAY_RISE:
+      return False
+    margin = ONE_WAY_MARGIN * (self.half[i, 1] + self.half[j, 1])
+    return bool(bottom >= top - margin
+                or (ref[i, 1] > top and bottom >= top - margin - self.press(i)))
+
+  def press(self, i: int) -> float:
+    """The deepest overlap along y, at the start, of a body above i that is not one-way
+    and overlaps it along y less than along x (0 if none)."""
+    ref = self.pos if self.start is None else self.start
+    out = 0.0
+    for k in range(self.n):
+      if k == i or self.one_way[k] or ref[k, 1] - ref[i, 1] <= 0:
+        continue
+      o = self.half[i] + self.half[k] - np.abs(ref[k] - ref[i])
+      if o[0] > 0 and 0 < o[1] < o[0]:
+        out = max(out, o[1])
+    return out
 
   def seam_axis(self, a: int, b: int, delta0, axis: int) -> int:
     """The axis of a corner contact (faces level along both axes at `start`) next to a
@@ -107,7 +160,7 @@ class _Scene:
     skin) and extends past it into the face."""
     a, b, s, t = face_axis, 1 - face_axis, face_sign, corner_sign
     for k in range(self.n):
-      if k == i or not np.isinf(self.mass[k]):
+      if k == i or not np.isinf(self.mass[k]) or self.one_way[k]:  # One-way: no surface.
         continue
       d = self.start[k] - self.start[i]
       h_i, h_k = self.half[i], self.half[k]
@@ -121,11 +174,11 @@ class _Scene:
   def linked(self, a: int, b: int) -> bool:
     """Whether a and b touch (within the skin) or overlap along their contact axis."""
     _, _, o_axis, o_other = self.contact(a, b)
-    return o_other > 0 and o_axis >= -self.skin
+    return o_other > 0 and o_axis >= -self.skin and self.admits(a, b)
 
   def penetrating(self, a: int, b: int) -> bool:
     _, _, o_axis, o_other = self.contact(a, b)
-    return o_axis > TOL and o_other > 0
+    return o_axis > TOL and o_other > 0 and self.admits(a, b)
 
   def in_front(self, i: int, axis: int, sign: float) -> list[int]:
     """Bodies that body i leans on along (axis, sign): touching (within skin) or
@@ -135,7 +188,7 @@ class _Scene:
       if j == i:
         continue
       ax, s, o_axis, o_other = self.contact(i, j)
-      if ax == axis and s == sign and o_other > 0 and o_axis >= -self.skin:
+      if ax == axis and s == sign and o_other > 0 and o_axis >= -self.skin and self.admits(i, j):
         out.append(j)
     return out
 
@@ -198,7 +251,7 @@ class _Scene:
 
 
 def resolve(pos, half, mass, *, skin: float = SKIN, max_sweeps: int = 1000,
-            start=None) -> np.ndarray:
+            start=None, one_way=None, vel=None) -> np.ndarray:
   """Chained resolution of a world of boxes.
 
   Args:
@@ -209,6 +262,9 @@ def resolve(pos, half, mass, *, skin: float = SKIN, max_sweeps: int = 1000,
     max_sweeps: cap on outer sweeps (each resolves every penetrating pair once).
     start: optional `[n, 2]` centres at the start of the step: pairs separated there
       take their contact axis from the motion (see `_Scene.contact`).
+    one_way: optional `[n]` bool, one-way (jump-through) bodies (`_Scene.admits`).
+    vel: optional `[n, 2]` velocities the one-way rule reads (a body rising relative
+      to a one-way body is not coming down onto it).
 
   Returns:
     `[n, 2]` float64 resolved centres.
@@ -220,7 +276,7 @@ def resolve(pos, half, mass, *, skin: float = SKIN, max_sweeps: int = 1000,
     >>> reference.resolve(pos, np.full((3, 2), 0.5), [1.0, 1.0, np.inf]).round(6).tolist()
     [[-0.1, 0.0], [0.9, 0.0], [1.9, 0.0]]
   """
-  scene = _Scene(pos, half, mass, skin, start)
+  scene = _Scene(pos, half, mass, skin, start, one_way, vel)
   for _ in range(max_sweeps):
     moved = False
     crush = np.zeros((scene.n, 4))  # Per body and direction (+x, -x, +y, -y).
@@ -266,7 +322,7 @@ def resolve_old(pos, half, mass, *, order=None, sweeps: int = 1) -> np.ndarray:
 
 def step(pos, vel, half, mass, *, friction=0.0, gravity=(0.0, -9.81), dt: float = 1 / 60,
          accel=None, skin: float = SKIN, substeps: int = 1, stick: float = 1e-3,
-         tol: float = 1e-12, max_iterations: int = 10_000):
+         tol: float = 1e-12, max_iterations: int = 10_000, one_way=None):
   """One time step, as `jaxchain.stepping.step` defines it, in plain loops (float64).
 
   Per substep of `sub_dt = dt / substeps`:
@@ -296,6 +352,8 @@ def step(pos, vel, half, mass, *, friction=0.0, gravity=(0.0, -9.81), dt: float 
     skin: link tolerance.
     stick: links sliding slower than this form friction units.
     tol, max_iterations: of the active-set solve.
+    one_way: optional `[n]` bool, one-way bodies (the rule reads each substep's start
+      positions and its velocities after gravity and input, as `jaxchain.step` does).
 
   Returns:
     `(pos, vel)` after the step, float64.
@@ -322,8 +380,9 @@ def step(pos, vel, half, mass, *, friction=0.0, gravity=(0.0, -9.81), dt: float 
     vel = vel + accel * sub_dt
     vel[movable] += np.asarray(gravity, np.float64) * sub_dt
     start = pos
-    pos = resolve(start + vel * sub_dt, half, mass, skin=skin, start=start)
-    scene = _Scene(pos, half, mass, skin, start)
+    pos = resolve(start + vel * sub_dt, half, mass, skin=skin, start=start, one_way=one_way,
+                  vel=vel)
+    scene = _Scene(pos, half, mass, skin, start, one_way, vel)
     links = []  # (i, j, axis, sign): j lies in direction sign along axis from i.
     for i in range(n):
       for j in range(i + 1, n):

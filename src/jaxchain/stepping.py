@@ -91,8 +91,9 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
     p, v, code, _, crushed, touching = carry
     cand, found = broadphase.candidates(p, world, config)
     cand = flags.admit(cand, world, layers=config.layers, sensors=config.sensors)
+    ow = one_way if one_way is None or v is None else dataclasses.replace(one_way, vel=v)
     front, overflow = geometry.links(p, world.half, cand, skin=config.skin, limit=config.links,
-                                     rows=movable, start=start, one_way=one_way,
+                                     rows=movable, start=start, one_way=ow,
                                      surface=surface)
     out = chain.displacement(front, mass, ~movable, depth=config.depth,
                              track_immovable=config.immovable, vel=v, stick=velocity.STICK,
