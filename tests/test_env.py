@@ -623,3 +623,19 @@ def test_dtypes_under_x64():
                         env=environ, timeout=600)
   assert done.returncode == 0, done.stderr[-3000:]
   assert "x64 env ok" in done.stdout
+
+
+def test_docs_two_box_task_is_short_and_matches_the_example():
+  """docs/rl.md's two-box task (run by tests/test_readme.py) stays under 30 lines and
+  is the task of examples/two_box_task.py."""
+  import re
+  page = (ROOT / "docs" / "rl.md").read_text()
+  block, = [b for b in re.findall(r"^```python\n(.*?)^```", page, flags=re.S | re.M)
+            if 'name="two_box"' in b]
+  assert len(block.strip().splitlines()) < 30
+  example = (ROOT / "examples" / "two_box_task.py").read_text()
+  for part in ("ROOM = ", "def reward(", "jc.env.Moves(repeat=4)", "jc.env.push_terminate"):
+    assert part in block and part in example, part
+  room = lambda text: text.split('ROOM = """')[1].split('"""')[0]
+  body = lambda text: text.split("def reward(")[1].split("\n\n")[0].split("\n", 1)[1]
+  assert room(block) == room(example) and body(block) == body(example)

@@ -450,7 +450,7 @@ class Environment:
     if task.randomize is not None:
       keys = jax.random.split(jax.random.key(0), 2 * self.num_levels)
       levels = jnp.tile(jnp.arange(self.num_levels, dtype=jnp.int32), 2)
-      probe = jax.vmap(lambda k, lv: self.reset_level(k, params, lv).world)(keys, levels)
+      probe = jax.jit(jax.vmap(lambda k, lv: self.reset_level(k, params, lv).world))(keys, levels)
       sized = jax.tree.map(lambda a, b: jnp.concatenate([jnp.asarray(a), b]), sized, probe)
     overrides = dict(config_overrides or {})
     if config is None:
