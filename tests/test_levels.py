@@ -435,10 +435,87 @@ def test_tiled_fixtures_with_unsupported_or_malformed_input(path, match):
     (_map(tilesets=[{"firstgid": 1, "name": "t", "tiles": [
         {"id": 0, "properties": [{"name": "one_way", "value": 1}]}]}]),
      r"tileset 't', tile 0: property 'one_way': expected a bool"),
+    # Issue 18: these raised TypeError, or loaded a body that World.create then blamed on
+    # its half-extents, naming neither layer nor object.
+    (_map(tilesets=[{"firstgid": 1, "name": "t", "tiles": 5}]),
+     r"m.tmj, tileset 't': 'tiles' must be an array, got 5"),
+    (_map(tilesets=[{"firstgid": 1, "source": 7}]), r"'source' .* must be a string, got 7"),
+    (_map([{**_obj(), "properties": [{"name": ["mass"], "value": 1}]}]),
+     r"layer 'things', object 3 'crate': property 0: a property name must be a string, got "
+     r"\['mass'\]"),
+    (_map([{**_obj(), "properties": {("mass",): 1}}]), r"property 0: a property name must be a "
+                                                      r"string"),
+    (_map(layers=[{"type": "group", "name": "g", "layers": 5}]),
+     r"layer 'g': 'layers' must be an array, got 5"),
+    (_map([_obj(name=["crate"])]), r"layer 'things', object 3: 'name' must be a string"),
+    (_map([_obj(type={"a": 1})]), r"object 3 'crate': 'type' must be a string"),
+    (_map([_obj(**{"class": 2.5})]), r"object 3 'crate': 'class' must be a string, got 2.5"),
+    (_map(layers=[{"type": "objectgroup", "name": None, "objects": []},
+                  {"type": "objectgroup", "name": ["x"], "objects": []}]),
+     r"layer 1: 'name' must be a string"),
+    (_map(tilesets=[{"firstgid": 1, "name": "t", "tiles": [{"id": 0, "type": [1]}]}]),
+     r"tileset 't', tile 0: 'class' must be a string"),
+    (_map(infinite="maybe"), r"m.tmj: 'infinite' must be a bool \(true or false\), got 'maybe'"),
+    (_map(infinite=2), r"'infinite' must be a bool"),
+    (_map([_obj({"mass": 1}, x=1e300)]),
+     r"layer 'things', object 3 'crate': position \(6.25e\+298, 1.5\) in world units is so far "
+     r"from the origin that its size 16x16 px rounds away"),
+    (_map([_obj({"mass": 1}, width=1e40)]),
+     r"layer 'things', object 3 'crate': position \(3.125e\+38, 1.5\) in world units overflows "
+     r"float32"),
+    (_map([_obj({"mass": 1}, x=1.7e308, width=1.7e308)]),
+     r"object 3 'crate': position .* is not finite"),
+    (_map(layer={"offsetx": 1e300}),
+     r"layer 'ground', tiles from row 1, column 0: position .* its size 32x16 px rounds away"),
 ])
 def test_tiled_malformed_input_is_an_error_naming_layer_object_and_property(data, match):
   with pytest.raises(ValueError, match=match):
     levels.load_tiled(data, name="m.tmj")
+
+
+@pytest.mark.parametrize("value, infinite", [
+    (False, False), ("false", False), ("False", False), ("0", False), (0, False),
+    (True, True), ("true", True), ("TRUE", True), ("1", True), (1, True)])
+def test_tiled_infinite_accepts_json_tmx_and_string_bools(value, infinite):
+  data = _map([_obj({"mass": 1})], infinite=value)
+  if infinite:
+    with pytest.raises(ValueError, match=r"m.tmj: infinite maps are not supported"):
+      levels.load_tiled(data, name="m.tmj")
+  else:
+    assert levels.load_tiled(data, name="m.tmj").num_bodies == 1
+
+
+def test_tiled_names_and_classes_are_string_tags():
+  group = {"type": "group", "name": 4, "layers": [
+      {"type": "objectgroup", "name": 5, "objects": [_obj(name=7, type=8), _obj(name="")]}]}
+  lv = levels.load_tiled(_map(layers=[group]))
+  assert dict(lv.tags) == {"4/5": (0, 1), "7": (0,), "8": (0,)}
+  assert all(isinstance(t, str) for t in lv.tags)
+
+
+@pytest.mark.parametrize("fields, props", [
+    (dict(type="player"), None), (dict(name="box"), None), ({"class": "box"}, None),
+    (dict(name="hero"), {"tag": "player"}), (dict(name="hero", type="player"), {"friction": 0.5})])
+def test_tiled_players_and_boxes_without_mass_default_to_mass_one(fields, props):
+  lv = levels.load_tiled(_map([_obj(props, **fields)]))
+  assert lv.mass.tolist() == [levels.DEFAULT_MASS] == [1.0]
+  assert lv.world().inv_mass.tolist() == [1.0]  # Movable: not a wall.
+
+
+@pytest.mark.parametrize("fields, props, mass", [
+    (dict(type="player"), {"mass": "inf"}, INF),  # An explicit mass wins.
+    (dict(type="box"), {"mass": 3}, 3.0),
+    (dict(type="box"), {"sensor": True}, INF),  # A sensor tagged box is still a sensor.
+    (dict(name="crate"), None, INF),  # Untagged: immovable, as before.
+    (dict(name="boxes"), None, INF)])  # Tags match whole names.
+def test_tiled_mass_rule_for_other_objects(fields, props, mass):
+  assert levels.load_tiled(_map([_obj(props, **fields)])).mass.tolist() == [mass]
+
+
+def test_tiled_tile_object_of_a_box_tile_defaults_to_mass_one():
+  tiles = [{"firstgid": 1, "name": "t", "tiles": [{"id": 0, "class": "box"}]}]
+  lv = levels.load_tiled(_map([_obj(gid=1, y=16)], tilesets=tiles))
+  assert lv.mass.tolist() == [1.0] and lv.tags["box"] == (0,)
 
 
 def test_tiled_missing_external_tileset_file(tmp_path):

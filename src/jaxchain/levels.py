@@ -60,6 +60,12 @@ FLIP_BITS = 0xF0000000  # Tiled GID flags: flipped horizontally, vertically, dia
 GID_MASK = 0x0FFFFFFF  # the tile id bits of a Tiled GID
 _MERGES = ("none", "row", "rect")
 _U32 = 1 << 32
+# The mass of a Tiled object tagged "player" or "box" (by its name, class, tile class,
+# layer or `tag` property) that has no `mass` property: the mass of the ASCII `@` and
+# `$`. Other objects without `mass` are immovable.
+DEFAULT_MASS = 1.0
+_MOVABLE_TAGS = ("player", "box")
+_F32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -628,7 +634,9 @@ def _properties(raw, where: _Where, known=_PROPERTIES) -> dict:
   else:
     raise where.error(f"properties must be an array, got {type(raw).__name__}")
   out = {}
-  for key, value in items:
+  for k, (key, value) in enumerate(items):
+    if not isinstance(key, str):
+      raise where.error(f"property {k}: a property name must be a string, got {key!r}")
     if key not in known:
       continue
     try:
@@ -643,6 +651,54 @@ def _int_field(data: Mapping, key: str, where: _Where, default=None, minimum=1) 
   if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
     raise where.error(f"{key!r} must be an int >= {minimum}, got {value!r}")
   return value
+
+
+def _name(value, what: str, where: _Where) -> str:
+  """A Tiled name, class or type as a string: `""` if absent; an integer (a map
+  written by a script) becomes its decimal string; anything else is an error."""
+  if value is None:
+    return ""
+  if isinstance(value, str):
+    return value
+  if isinstance(value, int) and not isinstance(value, bool):
+    return str(value)
+  raise where.error(f"{what!r} must be a string, got {value!r}")
+
+
+def _array(value, what: str, where: _Where, default=()) -> list:
+  """A JSON array field (absent or null: `default`)."""
+  if value is None:
+    return list(default)
+  if not isinstance(value, list):
+    raise where.error(f"{what!r} must be an array, got {value!r}")
+  return value
+
+
+def _flag(value, what: str, where: _Where) -> bool:
+  """A boolean map field: JSON true/false, or the forms TMX and scripts write
+  (0/1, "true"/"false", "0"/"1", any case)."""
+  if isinstance(value, bool):
+    return value
+  if isinstance(value, int) and value in (0, 1):
+    return bool(value)
+  if isinstance(value, str) and value.strip().lower() in ("true", "false", "0", "1"):
+    return value.strip().lower() in ("true", "1")
+  raise where.error(f"{what!r} must be a bool (true or false), got {value!r}")
+
+
+def _check_box(pos, half, where: _Where, size: str) -> None:
+  """A body's box must survive the conversion to world units: finite, with a size
+  that did not round away, and inside float32 (the World's default dtype)."""
+  if not all(math.isfinite(v) for v in (*pos, *half)):
+    raise where.error(f"position ({pos[0]:.6g}, {pos[1]:.6g}) in world units is not finite "
+                      f"(the map's coordinates overflow); move the object nearer the origin")
+  if not min(half) > 0:
+    raise where.error(f"position ({pos[0]:.6g}, {pos[1]:.6g}) in world units is so far from "
+                      f"the origin that its size {size} rounds away (float64); move it nearer "
+                      f"the origin")
+  if max(abs(p) + h for p, h in zip(pos, half)) > _F32_MAX:
+    raise where.error(f"position ({pos[0]:.6g}, {pos[1]:.6g}) in world units overflows float32 "
+                      f"(the World's dtype, at most {_F32_MAX:.4g}); move it nearer the origin")
 
 
 def _gids(layer: Mapping, width: int, height: int, where: _Where) -> np.ndarray:
@@ -704,11 +760,15 @@ def _read_tileset(ts: Mapping, base, where: _Where) -> list:
   """A tileset's tiles that have data: `[(local id, properties element, class)]`."""
   source = ts.get("source")
   if source is None:
-    tiles = ts.get("tiles") or []
+    tiles = _array(ts.get("tiles"), "tiles", where)
     if not all(isinstance(t, Mapping) for t in tiles):
       raise where.error("'tiles' must be an array of objects")
-    return [(t.get("id"), t.get("properties"), t.get("class") or t.get("type") or "")
+    return [(t.get("id"), t.get("properties"),
+             _name(t.get("class") or t.get("type"), "class", _Where(where.source, where.layer,
+                                                                    f"tile {t.get('id')!r}")))
             for t in tiles]
+  if not isinstance(source, str):
+    raise where.error(f"'source' (an external tileset's file) must be a string, got {source!r}")
   if base is None:
     raise where.error(f"external tileset {source!r} cannot be found without the map's directory")
   path = base.joinpath(source)
@@ -821,7 +881,7 @@ def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
   orientation = data.get("orientation", "orthogonal")
   if orientation != "orthogonal":
     raise where.error(f"orientation {orientation!r} is not supported (only orthogonal maps)")
-  if data.get("infinite", False):
+  if _flag(data.get("infinite", False), "infinite", where):
     raise where.error("infinite maps are not supported (their tile data is chunked); make the "
                       "map finite (map property Infinite off) and save it again")
   width, height = _int_field(data, "width", where), _int_field(data, "height", where)
@@ -844,10 +904,10 @@ def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
 
 def _walk(layers, inherited, offset, prefix, where, grid, units, tiles, bodies):
   """Adds the bodies of `layers` (and of groups within them) to `bodies`."""
-  for layer in layers:
+  for k, layer in enumerate(layers):
     if not isinstance(layer, Mapping):
       raise where.error("a layer must be a JSON object")
-    lname = prefix + str(layer.get("name", ""))
+    lname = prefix + _name(layer.get("name"), "name", _Where(where.source, f"layer {prefix}{k}"))
     lwhere = _Where(where.source, f"layer {lname!r}")
     own = _properties(layer.get("properties"), lwhere)
     props = {**inherited, **own}
@@ -860,7 +920,8 @@ def _walk(layers, inherited, offset, prefix, where, grid, units, tiles, bodies):
       raise lwhere.error(str(e)) from None
     kind = layer.get("type")
     if kind == "group":
-      _walk(layer.get("layers", []), props, off, lname + "/", where, grid, units, tiles, bodies)
+      _walk(_array(layer.get("layers"), "layers", lwhere), props, off, lname + "/", where, grid,
+            units, tiles, bodies)
     elif kind == "tilelayer":
       for key in _MOTION:
         if key in own:
@@ -896,6 +957,8 @@ def _tile_layer(layer, props, offset, lname, where, grid, units, tiles, bodies):
       if one_way:
         y1 = y0 + SLAB * th
       pos, half = units.box(x0, y0, x1, y1)
+      _check_box(pos, half, _Where(where.source, where.layer, f"tiles from row {r0}, column {c0}"),
+                 f"{(c1 - c0 + 1) * tw}x{(r1 - r0 + 1) * th} px")
       bodies.append(_Body((order, r0, c0), pos, half, math.inf, (0.0, 0.0), friction, one_way,
                           sensor, category, mask, tags))
 
@@ -905,12 +968,12 @@ def _object_layer(layer, props, offset, lname, where, units, tiles, bodies):
   if not isinstance(objects, list):
     raise where.error("'objects' must be an array")
   for k, obj in enumerate(objects):
-    oname = obj.get("name", "") if isinstance(obj, Mapping) else ""
-    owhere = _Where(where.source, where.layer,
-                    f"object {obj.get('id', k) if isinstance(obj, Mapping) else k}"
-                    + (f" {oname!r}" if oname else ""))
     if not isinstance(obj, Mapping):
-      raise owhere.error("an object must be a JSON object")
+      raise _Where(where.source, where.layer, f"object {k}").error("an object must be a JSON object")
+    oname = _name(obj.get("name"), "name", _Where(where.source, where.layer,
+                                                  f"object {obj.get('id', k)}"))
+    owhere = _Where(where.source, where.layer,
+                    f"object {obj.get('id', k)}" + (f" {oname!r}" if oname else ""))
     for shape in ("ellipse", "point", "polygon", "polyline", "text"):
       if shape in obj and obj[shape] is not False:
         raise owhere.error(f"{shape} objects are not supported (only rectangles and tile objects "
@@ -927,7 +990,9 @@ def _object_layer(layer, props, offset, lname, where, units, tiles, bodies):
       raise owhere.error(f"rotation {rotation:g} is not supported (boxes are axis-aligned)")
     if not (w > 0 and h > 0):
       raise owhere.error(f"size {w:g}x{h:g}: a body needs a width and height > 0")
-    tags = tuple(t for t in (lname, oname, obj.get("class") or obj.get("type")) if t)
+    kind = _name(obj.get("class") or obj.get("type"), "class" if obj.get("class") else "type",
+                 owhere)
+    tags = tuple(t for t in (lname, oname, kind) if t)
     resolved = dict(props)
     if "gid" in obj:  # A tile object: (x, y) is its bottom-left corner.
       gid = _int_field(obj, "gid", owhere, minimum=0) & GID_MASK
@@ -942,8 +1007,11 @@ def _object_layer(layer, props, offset, lname, where, units, tiles, bodies):
     vel = (resolved.get("vx", vx), resolved.get("vy", vy))
     one_way, sensor, friction, category, mask, tags = _spec(resolved, tags)
     pos, half = units.box(x + offset[0], y + offset[1], x + w + offset[0], y + h + offset[1])
-    bodies.append(_Body((len(bodies),), pos, half, resolved.get("mass", math.inf), vel, friction,
-                        one_way, sensor, category, mask, tags))
+    _check_box(pos, half, owhere, f"{w:g}x{h:g} px")
+    movable = not sensor and any(t in tags for t in _MOVABLE_TAGS)
+    mass = resolved.get("mass", DEFAULT_MASS if movable else math.inf)
+    bodies.append(_Body((len(bodies),), pos, half, mass, vel, friction, one_way, sensor, category,
+                        mask, tags))
 
 
 # Files and shipped levels.
@@ -984,14 +1052,21 @@ def load(path, legend=None, *, strict: bool = False, gravity=None) -> Level:
       (bool), `friction` (float >= 0), `category` and `mask` (int in [0, 2**32), or
       names like "player|box" from `CATEGORIES`; default `SOLID` (`SENSOR` for
       sensors) and all bits), `mass` (objects only: float > 0 or "inf"; absent means
-      immovable), `velocity` ("vx,vy" string) or `vx`/`vy` (floats; objects only,
+      `DEFAULT_MASS` (1.0) for an object tagged "player" or "box" that is not a
+      sensor, like the ASCII `@` and `$`, and immovable for any other), `velocity` ("vx,vy" string) or `vx`/`vy` (floats; objects only,
       world units per second, y up), `tag` (comma-separated extra tags). A tile's
       mass and velocity apply to tile objects; tile layers are immovable and static
       (mass or velocity on a tile layer itself is an error). Tags: the
       layer's name (group layers as "group/layer"), the object's name and
-      class (or type), and the tile's class. Units: one tile is one world unit
+      class (or type), and the tile's class, always strings (an integer name, as
+      scripts write, is read as its decimal string; any other non-string is an
+      error). Units: one tile is one world unit
       along each axis unless the map property `unit` (float) gives the pixels per
       unit; y points up. Map properties `gravity` ("gx,gy") and `name` are read too.
+      The map field `infinite` is a bool: JSON true/false, or 0/1 and the strings
+      "true"/"false"/"0"/"1" that TMX and scripts write; anything else is an
+      error. Every body must land inside float32 with its size intact (an object
+      at x = 1e300 is an error naming it).
 
   Args:
     path: a file path, or the name of a shipped level.
