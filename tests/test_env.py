@@ -574,6 +574,20 @@ def test_grid_and_pixel_observations():
     jc_env.make("push_box", obs="rgb")
 
 
+def test_every_obs_mode_steps_under_vmap():
+  """The step's obs and final_obs have the space's shape and dtype in every mode
+  (traced only: `jax.eval_shape`, no compile)."""
+  keys = jax.random.split(jax.random.key(29), B)
+  for mode, shape, dtype in (("grid", (7, 9, 4), jnp.float32), ("pixels", (32, 48, 3), jnp.uint8)):
+    env, p = jc_env.make("push_box_discrete", obs=mode, pixel_size=(32, 48))
+    assert env.observation_space(p).shape == shape
+    states = jax.eval_shape(jax.vmap(env.reset_level, in_axes=(0, None, None)), keys, p, 0)
+    out = jax.eval_shape(jax.vmap(env.step, in_axes=(0, 0, 0, None)), keys, states,
+                         jnp.zeros(B, jnp.int32), p)
+    for obs in (out[0], out[4]["final_obs"]):
+      assert obs.shape == (B,) + shape and obs.dtype == dtype, (mode, obs)
+
+
 def test_custom_observation_function():
   def observe(env, state, params):
     return state.world.pos[env.slots_of("box")]
