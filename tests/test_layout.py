@@ -30,27 +30,33 @@ def _jaxchain_imports(node: ast.AST) -> list[str]:
   return []
 
 
-def _tree(name: str) -> ast.Module:
-  return ast.parse((SRC / f"{name}.py").read_text(), filename=f"{name}.py")
+def _files(name: str) -> list[pathlib.Path]:
+  """A module's file, or every file of a subpackage (`env/`)."""
+  path = SRC / f"{name}.py"
+  return [path] if path.is_file() else sorted((SRC / name).glob("*.py"))
 
 
 def test_order_lists_every_module():
-  assert sorted(ORDER) == sorted(p.stem for p in SRC.glob("*.py") if p.stem != "__init__")
+  modules = [p.stem for p in SRC.glob("*.py") if p.stem != "__init__"]
+  packages = [p.parent.name for p in SRC.glob("*/__init__.py")]
+  assert sorted(ORDER) == sorted(modules + packages)
 
 
 @pytest.mark.parametrize("name", ORDER)
 def test_imports_only_earlier_modules_at_the_top(name):
-  tree = _tree(name)
-  top = [node for node in tree.body if isinstance(node, (ast.Import, ast.ImportFrom))]
-  for node in top:
-    for dep in _jaxchain_imports(node):
-      assert dep in ORDER[:ORDER.index(name)], (
-          f"{name}.py line {node.lineno} imports jaxchain.{dep}, which is not before it")
-  nested = [node for node in ast.walk(tree)
-            if isinstance(node, (ast.Import, ast.ImportFrom)) and node not in top
-            and _jaxchain_imports(node)]
-  assert not nested, f"{name}.py imports jaxchain modules below the top level: " + ", ".join(
-      f"line {node.lineno}" for node in nested)
+  for path in _files(name):  # A subpackage's files may also import each other.
+    tree = ast.parse(path.read_text(), filename=str(path))
+    where = path.relative_to(SRC)
+    top = [node for node in tree.body if isinstance(node, (ast.Import, ast.ImportFrom))]
+    for node in top:
+      for dep in _jaxchain_imports(node):
+        assert dep in ORDER[:ORDER.index(name)] + (name,) * (path.name != f"{name}.py"), (
+            f"{where} line {node.lineno} imports jaxchain.{dep}, which is not before it")
+    nested = [node for node in ast.walk(tree)
+              if isinstance(node, (ast.Import, ast.ImportFrom)) and node not in top
+              and _jaxchain_imports(node)]
+    assert not nested, f"{where} imports jaxchain modules below the top level: " + ", ".join(
+        f"line {node.lineno}" for node in nested)
 
 
 def test_modules_import_in_layout_order_in_a_fresh_interpreter():
