@@ -340,7 +340,7 @@ def test_two_box_task_from_parts(two_box):
   assert env.level_names == ("two_box",) and env.action_space(p) == jc_env.Discrete(5)
   assert [k for k, _ in env.slots] == ["box", "goal", "wall"] and env.actions.repeat == 4
   assert env.obs_shape == (9 + 8 * (2 + 2 + len(env.slots_of("wall"))),)
-  assert env.config.gravity is False and p.max_steps == 100
+  assert env.config.gravity is False and p.max_steps == 200
   states, keys = two_box.states([0], seed=20, params=p.replace(jitter=0.0))
   # Row 0: both boxes just short of their goals, sliding in at 3 u/s: home within the
   # first of the 4 physics steps. Row 1: the player runs right from rest.

@@ -127,7 +127,7 @@ float64).
 Every task also ends (terminated, reward 0) when the world goes non-finite
 (`status.NON_FINITE`), so one broken world resets instead of poisoning a batch.
 
-Cost: a step is one `jaxchain.step` on the env's 13-27 body slots (dense pairs)
+Cost: a step is one `jaxchain.step` on the env's 9-20 body slots (dense pairs)
 per action repeat, plus the reset it may need; on 2 CPU cores that is about
 1e4-2e4 env-steps/s, with little gain from batching (CPU-bound per world;
 `benchmarks/results/env_throughput.md`).
