@@ -293,15 +293,6 @@ def _layers(world: World, bounds, player, *, h: int, w: int, antialias: bool,
     bounds = jnp.where(jnp.all(jnp.isfinite(bounds)), bounds, bounds_of(world))
   xs, ys, step = _pixel_edges(bounds, h, w, keep_aspect, dtype)
   zero = jnp.zeros((), dtype)
-  lo = jnp.where(drawable[:, None], world.pos - world.half, zero)
-  hi = jnp.where(drawable[:, None], world.pos + world.half, zero)
-  # Per-axis coverage of each pixel column / row: [n, W], [n, H] (rows: y from ys[i+1]
-  # up to ys[i]).
-  cx = _cover(lo[:, 0], hi[:, 0], xs[:-1], xs[1:], step[0], antialias)
-  cy = _cover(lo[:, 1], hi[:, 1], ys[1:], ys[:-1], step[1], antialias)
-  cx_in = _cover(lo[:, 0] + step[0], hi[:, 0] - step[0], xs[:-1], xs[1:], step[0], antialias)
-  cy_in = _cover(lo[:, 1] + step[1], hi[:, 1] - step[1], ys[1:], ys[:-1], step[1], antialias)
-
   colour = lambda rgb: jnp.asarray(rgb, dtype)
   sensor = world.sensor & drawable
   kind = jnp.where(world.inv_mass > 0, 0, 1)  # Movable, immovable.
@@ -312,15 +303,24 @@ def _layers(world: World, bounds, player, *, h: int, w: int, antialias: bool,
   table = jnp.stack([colour(palette.movable), colour(palette.immovable), colour(palette.one_way),
                      colour(palette.player), colour(palette.crushed), colour(palette.sensor),
                      colour(palette.sensed)])
-  rgb = table[kind]  # [n, 3]
   fill = jnp.where(world.sensed, palette.sensed_alpha, palette.sensor_alpha).astype(dtype)
   fill = jnp.where(sensor, fill, jnp.ones((), dtype))
   fill = jnp.where(drawable, fill, zero)
   outline = jnp.where(sensor, 1.0 - fill, zero)
+  lo = jnp.where(drawable[:, None], world.pos - world.half, zero)
+  hi = jnp.where(drawable[:, None], world.pos + world.half, zero)
+  # Draw order first, on the [n] values (gathers of [n, H] tables cost more than the rest).
+  order = jnp.argsort(sensor, stable=True)  # Solid bodies in index order, then sensors.
+  lo, hi, kind, fill, outline = (x[order] for x in (lo, hi, kind, fill, outline))
+  # Per-axis coverage of each pixel column / row: [n, W], [n, H] (rows: y from ys[i+1]
+  # up to ys[i]).
+  cx = _cover(lo[:, 0], hi[:, 0], xs[:-1], xs[1:], step[0], antialias)
+  cy = _cover(lo[:, 1], hi[:, 1], ys[1:], ys[:-1], step[1], antialias)
+  cx_in = _cover(lo[:, 0] + step[0], hi[:, 0] - step[0], xs[:-1], xs[1:], step[0], antialias)
+  cy_in = _cover(lo[:, 1] + step[1], hi[:, 1] - step[1], ys[1:], ys[:-1], step[1], antialias)
   pa = (fill + outline)[:, None] * cy
   pb = outline[:, None] * cy_in
-  order = jnp.argsort(sensor, stable=True)  # Solid bodies in index order, then sensors.
-  return jax.tree.map(lambda x: x[order], (pa, pb, cx, cx_in, rgb))
+  return pa, pb, cx, cx_in, table[kind]
 
 
 def _groups(n: int) -> tuple[int, int]:
