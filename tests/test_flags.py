@@ -390,15 +390,27 @@ ONE_WAY_SCENES = {
     # The same box coming down with its bottom 0.02 below the top: it lands on it.
     "landing_in_margin": world(body([0.0, 0.48], 0.5, 80.0, vel=[0.0, -0.3]), LEDGE),
 }
+# The elevator of crush_on_elevator stopped after 60 steps (its top at 1, the box
+# crushed 0.25 deep into both): the box keeps the crush's mean velocity, +0.5, upward
+# relative to the stopped elevator, and must still be held.
+ONE_WAY_SCENES["crush_on_stopped_elevator"] = ONE_WAY_SCENES["crush_on_elevator"]
 T_CRUSH = 90
+STOP = 60
+ONE_WAY_CONTROLS = {"crush_on_stopped_elevator": (1, STOP, -1.0 / DT)}  # body, step, accel y.
 
 
 @pytest.fixture(scope="module")
 def one_way_runs():
   """Every one-way scene's `(start, trajectory)`, from one compiled, vmapped rollout."""
   worlds = jc.stack(list(ONE_WAY_SCENES.values()))
-  run = jax.jit(jax.vmap(lambda w: jc.rollout(w, CFG, T_CRUSH, record=("crushed", "status"))[1]))
-  traj = run(worlds)
+  controls = np.zeros((len(ONE_WAY_SCENES), T_CRUSH, N, 2), np.float32)
+  for b, name in enumerate(ONE_WAY_SCENES):
+    if name in ONE_WAY_CONTROLS:
+      k, t, a = ONE_WAY_CONTROLS[name]
+      controls[b, t, k, 1] = a
+  run = jax.jit(jax.vmap(lambda w, u: jc.rollout(w, CFG, T_CRUSH, u,
+                                                 record=("crushed", "status"))[1]))
+  traj = run(worlds, jnp.asarray(controls))
   pick = lambda tree, b: jax.tree.map(lambda x: np.asarray(x[b]), tree)
   return {name: (w, pick(traj, b)) for b, (name, w) in enumerate(ONE_WAY_SCENES.items())}
 
@@ -434,6 +446,15 @@ def test_box_on_a_one_way_elevator_rising_into_a_ceiling_stays_between(one_way_r
   np.testing.assert_allclose(y[31:89], (lift[31:89] + 1.5) / 2, atol=2e-5)  # Centred.
   assert traj.crushed[31:89, 0].all() and not traj.crushed[:29, 0].any()
   assert np.all((y[:89] > lift[:89]) & (y[:89] < 1.5))  # Never drops out, never passes.
+
+
+def test_box_crushed_on_an_elevator_that_stops_is_still_held(one_way_runs):
+  _, traj = one_way_runs["crush_on_stopped_elevator"]
+  lift = traj.pos[:, 1, 1] + 0.1
+  np.testing.assert_allclose(lift[STOP:], 1.0, atol=1e-5)  # Stopped at step 60.
+  np.testing.assert_allclose(traj.pos[STOP - 1:, 0, 1], 1.25, atol=2e-5)  # Centred, held.
+  np.testing.assert_allclose(traj.vel[STOP + 1:, 0, 1], 0.0, atol=1e-5)
+  assert traj.crushed[STOP:, 0].all()
 
 
 def test_box_rising_within_the_one_way_margin_is_not_lifted_onto_it(one_way_runs):

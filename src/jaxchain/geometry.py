@@ -227,13 +227,14 @@ def _one_way_rule(ref: jax.Array, half: jax.Array, cand: Candidates, ow: OneWay,
     (issue 18: a box rising at 0.3 with its bottom 0.03 below the top was lifted onto
     it, +20.7 J in one step); or
   * it is *pressed* into j (a crush sinks a body deeper than the margin): its centre
-    is above j's top, it is not rising relative to j, and it sinks below j's top by at
-    most the margin plus its press, the deepest overlap along y (the axis of smaller
-    overlap) of a body above it that is not one-way. The crush rule splits the overlap
-    of a crushed body equally between its two sides, so a body crushed onto a one-way
-    ledge overlaps the ceiling as deep as it sinks into the ledge: the ledge keeps
-    holding it, and it stays between the two until their faces meet (it never drops
-    through).
+    is above j's top and it sinks below j's top by at most the margin plus its press,
+    the deepest overlap along y (the axis of smaller overlap) of a body above it that
+    is not one-way. The crush rule splits the overlap of a crushed body equally between
+    its two sides, so a body crushed onto a one-way ledge overlaps the ceiling as deep
+    as it sinks into the ledge: the ledge keeps holding it, and it stays between the
+    two until their faces meet (it never drops through). Velocities do not matter here:
+    a box crushed on a rising elevator keeps the crush's mean velocity, upward, when
+    the elevator stops, and must still be held.
 
   It lets the others pass, from below and from the sides; solid immovable bodies block
   it like any body. Two one-way bodies meet when one came down onto the other. Every
@@ -263,12 +264,10 @@ def _one_way_rule(ref: jax.Array, half: jax.Array, cand: Candidates, ow: OneWay,
   else:
     rel = partner(ow.vel) - col(ow.vel)  # j's velocity along y relative to i's.
     rising_i, rising_j = rel < -ONE_WAY_RISE, rel > ONE_WAY_RISE
-  sunk_i = (bottom_i >= top_j - margin) | ((col(ref) > top_j)
-                                           & (bottom_i >= top_j - margin - press_i))
-  sunk_j = (bottom_j >= top_i - margin) | ((partner(ref) > top_i)
-                                           & (bottom_j >= top_i - margin - press_j))
-  i_above = (bottom_i >= top_j) | (~rising_i & sunk_i)
-  j_above = (bottom_j >= top_i) | (~rising_j & sunk_j)
+  pressed_i = (col(ref) > top_j) & (bottom_i >= top_j - margin - press_i) & (press_i > 0)
+  pressed_j = (partner(ref) > top_i) & (bottom_j >= top_i - margin - press_j) & (press_j > 0)
+  i_above = (bottom_i >= top_j) | (~rising_i & (bottom_i >= top_j - margin)) | pressed_i
+  j_above = (bottom_j >= top_i) | (~rising_j & (bottom_j >= top_i - margin)) | pressed_j
   solid_i, solid_j = ow.solid[:, None], cand.gather(ow.solid)
   admitted = jnp.where(ow_i & ow_j, i_above | j_above,
                        (~ow_j | solid_i | i_above) & (~ow_i | solid_j | j_above))

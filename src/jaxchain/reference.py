@@ -113,17 +113,17 @@ class _Scene:
     """Whether body i came down onto body j, judged at the start (the current
     positions without one) and from the velocities: i's bottom is at or above j's top;
     or i is not rising relative to j (by more than `ONE_WAY_RISE`) and its bottom is
-    below j's top by at most the margin (`ONE_WAY_MARGIN` of the two half-heights), or,
-    with i's centre above j's top, by at most the margin plus i's press (`press`)."""
+    below j's top by at most the margin (`ONE_WAY_MARGIN` of the two half-heights); or
+    i is pressed into j: its centre is above j's top and its bottom below it by at
+    most the margin plus i's press (`press`, > 0), whatever the velocities."""
     ref = self.pos if self.start is None else self.start
     bottom, top = ref[i, 1] - self.half[i, 1], ref[j, 1] + self.half[j, 1]
-    if bottom >= top:
-      return True
-    if self.vel is not None and self.vel[i, 1] - self.vel[j, 1] > ONE_WAY_RISE:
-      return False
     margin = ONE_WAY_MARGIN * (self.half[i, 1] + self.half[j, 1])
-    return bool(bottom >= top - margin
-                or (ref[i, 1] > top and bottom >= top - margin - self.press(i)))
+    press = self.press(i)
+    if bottom >= top or (ref[i, 1] > top and press > 0 and bottom >= top - margin - press):
+      return True
+    rising = self.vel is not None and self.vel[i, 1] - self.vel[j, 1] > ONE_WAY_RISE
+    return bool(not rising and bottom >= top - margin)
 
   def press(self, i: int) -> float:
     """The deepest overlap along y, at the start, of a body above i that is not one-way
