@@ -1,0 +1,248 @@
+"""jaxchain.bridges against the real gymnax and Gymnasium packages.
+
+The adapters must give what the wrapped env gives: the gymnax step is jaxchain's
+`env.step` (same key split, same auto-reset), the vector env is the vmapped step
+in NumPy, and the single env passes Gymnasium's own checker. Tasks are tiny
+(`max_steps` of a few steps) so episodes end inside a test.
+"""
+
+import doctest
+import subprocess
+import sys
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxchain as jc
+from jaxchain import bridges
+
+gymnax = pytest.importorskip("gymnax", reason="the rl extra (pip install -e '.[rl]')")
+gymnasium = pytest.importorskip("gymnasium", reason="the rl extra (pip install -e '.[rl]')")
+from gymnasium.utils.env_checker import check_env  # noqa: E402
+from gymnax.environments import environment as gymnax_environment  # noqa: E402
+from gymnax.environments import spaces as gymnax_spaces  # noqa: E402
+
+MAX_STEPS = 3
+# A discrete task with few bodies if the library has one, else the platformer.
+DISCRETE = "push_box_discrete" if "push_box_discrete" in jc.env.TASKS else "reach_flag"
+
+
+def test_import_jaxchain_needs_neither_package():
+  code = ("import sys, jaxchain, jaxchain.bridges, jaxchain.env; "
+          "print(sorted(m for m in ('gymnax', 'gymnasium', 'flax', 'optax') if m in sys.modules))")
+  out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+  assert out.stdout.strip() == "[]"
+
+
+def test_doctests():
+  result = doctest.testmod(bridges, optionflags=doctest.ELLIPSIS)
+  assert result.attempted > 0 and result.failed == 0
+
+
+def test_unknown_attribute():
+  with pytest.raises(AttributeError, match="no attribute"):
+    bridges.NotAnAdapter  # noqa: B018
+
+
+# gymnax.
+
+
+@pytest.fixture(scope="module")
+def gymnax_pair():
+  env, params = jc.env.make("push_box_easy", max_steps=MAX_STEPS)
+  return env, params, bridges.GymnaxEnv(env, params)
+
+
+def test_gymnax_interface(gymnax_pair):
+  env, params, genv = gymnax_pair
+  assert isinstance(genv, gymnax_environment.Environment)
+  assert genv.default_params is params
+  assert genv.name == "PushBoxEasy-jaxchain"
+  assert genv.num_actions == 2
+  space = genv.action_space(params)
+  assert isinstance(space, gymnax_spaces.Box)
+  assert (space.low, space.high, tuple(space.shape)) == (-1.0, 1.0, (2,))
+  obs_space = genv.observation_space(params)
+  assert isinstance(obs_space, gymnax_spaces.Box)
+  assert tuple(obs_space.shape) == env.observation_space(params).shape
+  assert "GymnaxEnv" in repr(genv)
+
+
+def test_gymnax_step_is_jaxchains_step(gymnax_pair):
+  """gymnax's inherited `step` (auto-reset by gymnax) equals jaxchain's `env.step`
+  on the same keys, through an episode end, batched under vmap."""
+  env, params, genv = gymnax_pair
+  b = 2
+  keys = jax.random.split(jax.random.key(0), b)
+  obs_g, state_g = jax.vmap(genv.reset, in_axes=(0, None))(keys, params)
+  obs_j, state_j = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
+  np.testing.assert_array_equal(obs_g, obs_j)
+  step_g = jax.jit(jax.vmap(genv.step, in_axes=(0, 0, 0, None)))
+  step_j = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+  action = jnp.array([[1.0, 0.0], [-0.5, 0.5]], jnp.float32)
+  ended = False
+  for t in range(MAX_STEPS + 1):
+    keys = jax.random.split(jax.random.key(t + 1), b)
+    obs_g, state_g, r_g, term, trunc, info_g = step_g(keys, state_g, action, params)
+    obs_j, state_j, r_j, done, info_j = step_j(keys, state_j, action, params)
+    np.testing.assert_array_equal(obs_g, obs_j)
+    np.testing.assert_array_equal(r_g, r_j)
+    np.testing.assert_array_equal(term | trunc, done)
+    np.testing.assert_array_equal(term, info_j["terminated"])
+    np.testing.assert_array_equal(trunc, info_j["truncated"])
+    np.testing.assert_array_equal(info_g["final_observation"], info_j["final_obs"])
+    np.testing.assert_array_equal(state_g.env_state.t, state_j.t)
+    np.testing.assert_array_equal(state_g.time, state_j.t)  # Both 0 after a reset.
+    np.testing.assert_array_equal(info_g["success"], info_j["success"])
+    ended = ended or bool(np.any(done))
+  assert ended, "the episode should have been truncated at max_steps"
+  assert bool(genv.is_terminal(state_g, params).shape == (b,))
+
+
+def test_gymnax_transition_gradients(gymnax_pair):
+  """Stopped by default (gymnax's rule); `with_transition_gradients()` lets jaxchain's
+  differentiable step through."""
+  env, params, genv = gymnax_pair
+  _, state = genv.reset(jax.random.key(0), params)
+  key = jax.random.key(1)
+
+  def speed(e, a):
+    obs, *_ = e.step_env(key, state, a, params)
+    return obs[2]  # The player's x velocity.
+
+  a = jnp.array([0.5, 0.0], jnp.float32)
+  assert float(jax.grad(lambda a: speed(genv, a))(a)[0]) == 0.0
+  live = genv.with_transition_gradients()
+  assert live.transition_gradients_enabled and not genv.transition_gradients_enabled
+  assert float(jax.grad(lambda a: speed(live, a))(a)[0]) > 0.0
+
+
+def test_gymnax_register_and_make():
+  ids = bridges.register_gymnax()
+  assert "PushBoxEasy-jaxchain" in ids and "ReachFlag-jaxchain" in ids
+  assert set(ids) <= set(gymnax.registered_envs)
+  assert bridges.register_gymnax() == ids  # Idempotent.
+  genv, params = gymnax.make("PushBoxEasy-jaxchain", max_steps=7)
+  assert isinstance(genv, bridges.GymnaxEnv)
+  assert params.max_steps == 7
+
+
+def test_gymnax_discrete_space():
+  genv = bridges.GymnaxEnv(DISCRETE, max_steps=MAX_STEPS)
+  space = genv.action_space(genv.default_params)
+  assert isinstance(space, gymnax_spaces.Discrete)
+  assert space.n == genv.num_actions == genv.env.action_space().n
+
+
+# Gymnasium.
+
+
+def test_gymnasium_env_passes_check_env():
+  bridges.register_gymnasium()
+  env = gymnasium.make(bridges.GYMNASIUM_IDS[DISCRETE], max_steps=MAX_STEPS)
+  with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    check_env(env.unwrapped)  # Raises on any API violation; render modes included.
+  # The only remarks: the observation box is unbounded (it is: velocities, offsets).
+  remarks = {str(w.message) for w in caught}
+  assert all("infinity" in m for m in remarks), remarks
+  env.close()
+
+
+def test_gymnasium_env_episode():
+  env = bridges.GymnasiumEnv("push_box_easy", max_steps=MAX_STEPS, render_mode="rgb_array")
+  assert isinstance(env, gymnasium.Env)
+  assert env.action_space == gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+  with pytest.raises(RuntimeError, match="reset"):
+    env.step(np.zeros(2, np.float32))
+  obs, info = env.reset(seed=3)
+  assert obs.dtype == np.float32 and obs in env.observation_space and info == {}
+  again, _ = env.reset(seed=3)
+  np.testing.assert_array_equal(obs, again)
+  frame = env.render()
+  assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[-1] == 3
+  for t in range(MAX_STEPS):
+    obs, reward, terminated, truncated, info = env.step(np.array([1.0, 0.0], np.float32))
+    assert isinstance(reward, float) and isinstance(terminated, bool)
+    assert set(info) >= {"success", "invalid_action", "episode_return", "episode_length"}
+  assert truncated and not terminated and int(info["episode_length"]) == MAX_STEPS
+  with pytest.raises(ValueError, match="action: expected shape"):
+    env.step(np.float32(1.0))  # A scalar is not broadcast.
+
+
+@pytest.fixture(scope="module")
+def vector_pair():
+  env, params = jc.env.make("push_box_easy", max_steps=MAX_STEPS)
+  return env, params, bridges.GymnasiumVectorEnv(env, num_envs=3, params=params)
+
+
+def test_vector_env_spaces(vector_pair):
+  env, params, venv = vector_pair
+  assert isinstance(venv, gymnasium.vector.VectorEnv)
+  assert venv.num_envs == 3
+  assert venv.metadata["autoreset_mode"] == gymnasium.vector.AutoresetMode.SAME_STEP
+  assert venv.single_action_space == gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+  assert venv.action_space.shape == (3, 2)
+  assert venv.single_observation_space.shape == env.observation_space(params).shape
+  assert venv.observation_space.shape == (3,) + env.observation_space(params).shape
+
+
+def test_vector_env_is_the_vmapped_step(vector_pair):
+  """NumPy in and out, equal to jaxchain's vmapped step; same-step autoreset with
+  Gymnasium's `final_obs` / `final_info` masks."""
+  env, params, venv = vector_pair
+  obs, info = venv.reset(seed=5)
+  assert isinstance(obs, np.ndarray) and obs.shape == (3, env.obs_size) and info == {}
+  again, _ = venv.reset(seed=5)
+  np.testing.assert_array_equal(obs, again)
+  actions = np.tile(np.array([[0.8, -0.2]], np.float32), (3, 1))
+  # The reference: the same keys through jaxchain directly.
+  key = jax.random.key(5)
+  key, k = jax.random.split(key)
+  ref_obs, ref_state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(k, 3), params)
+  np.testing.assert_array_equal(obs, ref_obs)
+  step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+  for t in range(MAX_STEPS):
+    obs, reward, terminated, truncated, info = venv.step(actions)
+    key, k = jax.random.split(key)
+    ref_obs, ref_state, ref_r, ref_done, ref_info = step(jax.random.split(k, 3), ref_state,
+                                                         jnp.asarray(actions), params)
+    assert isinstance(reward, np.ndarray) and reward.shape == (3,)
+    np.testing.assert_array_equal(obs, ref_obs)
+    np.testing.assert_array_equal(reward, ref_r)
+    np.testing.assert_array_equal(terminated | truncated, ref_done)
+    np.testing.assert_array_equal(info["episode_return"], ref_info["episode_return"])
+    assert info["_success"].all()
+  assert truncated.all() and not terminated.any()
+  assert info["_final_obs"].all() and info["final_obs"].dtype == object
+  np.testing.assert_array_equal(np.stack(info["final_obs"]), ref_info["final_obs"])
+  assert info["final_info"]["_episode_length"].all()
+  np.testing.assert_array_equal(info["final_info"]["episode_length"], MAX_STEPS)
+  assert (info["episode_length"] == MAX_STEPS).all()
+  with pytest.raises(ValueError, match=r"action: expected shape \(3, 2\)"):
+    venv.step(np.zeros((2, 2), np.float32))
+  assert "num_envs=3" in repr(venv)
+
+
+def test_vector_env_make_vec():
+  ids = bridges.register_gymnasium()
+  assert bridges.GYMNASIUM_IDS["push_box_easy"] in ids
+  venv = gymnasium.make_vec(bridges.GYMNASIUM_IDS["push_box_easy"], num_envs=2,
+                            vectorization_mode="vector_entry_point", max_steps=MAX_STEPS)
+  assert isinstance(venv.unwrapped, bridges.GymnasiumVectorEnv) and venv.num_envs == 2
+  assert venv.unwrapped.params.max_steps == MAX_STEPS
+
+
+def test_bad_arguments():
+  env, params = jc.env.make("push_box_easy")
+  with pytest.raises(TypeError, match="need a task name"):
+    bridges.GymnasiumVectorEnv(env, num_envs=2, max_steps=4)
+  with pytest.raises(TypeError, match="only with a built env"):
+    bridges.GymnaxEnv("push_box_easy", params)
+  with pytest.raises(ValueError, match="num_envs"):
+    bridges.GymnasiumVectorEnv("push_box_easy", num_envs=0)
+  with pytest.raises(ValueError, match="render_mode"):
+    bridges.GymnasiumEnv(env, params, render_mode="human")
