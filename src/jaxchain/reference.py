@@ -452,53 +452,95 @@ def _crush(vel, movable, links, crushed, start_vel):
 def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
   """Coulomb friction on units (see `jaxchain.velocity.friction`): `before` are the
   velocities that decide which links stick (slide slower than `stick`); links sliding
-  slower than `slip` take no part."""
+  slower than `slip` take no part. Solved on those units once; a sticking link whose
+  budget `sqrt(mu_i mu_j) * normal` cannot hold the shear that moving as one needs
+  slips, and the impulses are solved again on the units without it, the slipping link
+  carrying its whole budget in the direction of that shear."""
   n = len(vel)
   movable = ~np.isinf(mass)
   sticking = [abs(before[i, 1 - a] - before[j, 1 - a]) <= stick for i, j, a, _ in links]
+  budgets = [np.sqrt(mu[i] * mu[j]) * lam for (i, j, _, _), lam in zip(links, normal)]
+  rubbing = [b > 0 and abs(vel[i, 1 - a] - vel[j, 1 - a]) > slip
+             for (i, j, a, _), b in zip(links, budgets)]
 
-  def ahead(q, axis, sign):  # Bodies in front of q along (axis, sign) through sticking links.
-    out = []
-    for (i, j, a, s), st in zip(links, sticking):
-      if a == axis and st:
-        if i == q and s == sign:
-          out.append(j)
-        elif j == q and s == -sign:
-          out.append(i)
-    return out
+  def solve(sticking, forced):
+    """Velocity changes on the units of the `sticking` links, with the links in
+    `forced` (index -> impulse) carrying that impulse; also each body's change per
+    unit direction, its units and their pushers."""
+    def ahead(q, axis, sign):  # Bodies in front of q along (axis, sign), sticking links.
+      out = []
+      for (i, j, a, s), st in zip(links, sticking):
+        if a == axis and st:
+          if i == q and s == sign:
+            out.append(j)
+          elif j == q and s == -sign:
+            out.append(i)
+      return out
 
-  def pushers(k, axis, sign):
-    return sum(1 for q in range(n) if k in ahead(q, axis, sign))
+    def pushers(k, axis, sign):
+      return sum(1 for q in range(n) if k in ahead(q, axis, sign))
 
-  def unit(q, axis, sign):
-    if not movable[q]:
-      return 0.0
-    return mass[q] + sum(unit(k, axis, sign) / pushers(k, axis, sign) for k in ahead(q, axis, sign))
+    def unit(q, axis, sign):
+      if not movable[q]:
+        return 0.0
+      return mass[q] + sum(unit(k, axis, sign) / pushers(k, axis, sign)
+                           for k in ahead(q, axis, sign))
 
-  def deliver(q, axis, sign, value, dv):
-    if not movable[q]:
-      return
-    dv[q, 1 - axis] += value
-    for k in ahead(q, axis, sign):
-      deliver(k, axis, sign, value / pushers(k, axis, sign), dv)
+    def deliver(q, axis, sign, value, dv, along):
+      if not movable[q]:
+        return
+      dv[q, 1 - axis] += value
+      along[(axis, sign)][q] += value
+      for k in ahead(q, axis, sign):
+        deliver(k, axis, sign, value / pushers(k, axis, sign), dv, along)
 
-  budgets = [np.sqrt(mu[i] * mu[j]) * lam if abs(vel[i, 1 - a] - vel[j, 1 - a]) > slip else 0.0
-             for (i, j, a, _), lam in zip(links, normal)]
-  count = np.zeros(n)
-  for (i, j, _, _), b in zip(links, budgets):
-    if b > 0:
-      count[i] += 1
-      count[j] += 1
-  dv = np.zeros_like(vel)
-  for (i, j, axis, sign), b in zip(links, budgets):
-    if b <= 0:
+    active = [r or (k in forced) for k, r in enumerate(rubbing)]
+    count = np.zeros(n)  # Links solved (not forced) per body.
+    kinetic = np.zeros_like(vel)  # What the forced links do to their own bodies.
+    for k, ((i, j, axis, sign), act) in enumerate(zip(links, active)):
+      if act and k not in forced:
+        count[i] += 1
+        count[j] += 1
+      if k in forced:
+        unit_i, unit_j = unit(i, axis, -sign), unit(j, axis, sign)
+        kinetic[i, 1 - axis] -= forced[k] / unit_i if unit_i > 0 else 0.0
+        kinetic[j, 1 - axis] += forced[k] / unit_j if unit_j > 0 else 0.0
+    after = vel + kinetic
+    dv = np.zeros_like(vel)
+    along = {(a, s): np.zeros(n) for a in (0, 1) for s in (1.0, -1.0)}
+    for k, ((i, j, axis, sign), b) in enumerate(zip(links, budgets)):
+      if not active[k]:
+        continue
+      t = 1 - axis
+      unit_i, unit_j = unit(i, axis, -sign), unit(j, axis, sign)
+      if k in forced:
+        impulse = forced[k]
+      else:
+        w = (count[i] / unit_i if unit_i > 0 else 0.0) + (count[j] / unit_j if unit_j > 0 else 0.0)
+        impulse = np.clip((after[i, t] - after[j, t]) / w, -b, b)
+      if unit_i > 0:
+        deliver(i, axis, -sign, -impulse / unit_i, dv, along)
+      if unit_j > 0:
+        deliver(j, axis, sign, impulse / unit_j, dv, along)
+    return dv, along, unit, pushers
+
+  dv, along, unit, pushers = solve(sticking, {})
+  forced = {}
+  for k, ((i, j, axis, sign), st, b) in enumerate(zip(links, sticking, budgets)):
+    if not st:
       continue
-    t = 1 - axis
-    unit_i, unit_j = unit(i, axis, -sign), unit(j, axis, sign)
-    w = (count[i] / unit_i if unit_i > 0 else 0.0) + (count[j] / unit_j if unit_j > 0 else 0.0)
-    impulse = np.clip((vel[i, t] - vel[j, t]) / w, -b, b)
-    if unit_i > 0:
-      deliver(i, axis, -sign, -impulse / unit_i, dv)
-    if unit_j > 0:
-      deliver(j, axis, sign, impulse / unit_j, dv)
+
+    def share(q, axis, sign):  # The unit q heads along (axis, sign), per pusher.
+      p = pushers(q, axis, sign)
+      return unit(q, axis, sign) / p if p > 0 else 0.0
+
+    # The shear moving as one needs: j's unit takes i's change along the link's
+    # direction, i's unit j's change along the opposite one.
+    shear = along[(axis, sign)][i] * share(j, axis, sign) - along[(axis, -sign)][j] * share(
+        i, axis, -sign)
+    if abs(shear) > b:
+      sticking[k] = False
+      if b > 0:
+        forced[k] = float(np.clip(shear, -b, b))
+  dv, _, _, _ = solve(sticking, forced)
   return vel + dv

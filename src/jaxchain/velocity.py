@@ -54,6 +54,15 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
   momentum is conserved. An energy guard (`chain.energy_scale`) scales the update
   down, per world, if it would ever add energy beyond what moving platforms give.
 
+  Friction acts per link: a unit moves as one only through links whose own Coulomb
+  budget holds the shear that moving as one needs (`_holding`). The impulses are
+  solved once on the units the chain built; a sticking link whose share of its unit's
+  velocity change needs more shear than `mu_pair * normal` slips, and the impulses are
+  solved again on the units without it, the slipping link carrying its whole budget
+  (kinetic friction) in the direction of that shear. So a frictionless box on a
+  sliding stack keeps sliding, one on a box held by friction on a slope slides down
+  it, and the motion depends on every link's coefficient.
+
   Args:
     vel: `[n, 2]` velocities after the normal impulses.
     front: the link table the normal impulses were computed on.
@@ -74,31 +83,80 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
   sliding = jnp.where(front.mask, tangent[None] - front.gather(tangent), 0.0)
   mu_pair = _safe_sqrt(coefficient[None, None] * front.gather_bodies(coefficient))
   budget = jnp.where(front.mask, mu_pair * normal, 0.0)
-  active = (budget > 0) & (jnp.abs(sliding) > SLIP)
-  k = jnp.broadcast_to(jnp.sum(active, axis=(0, 1)).astype(dtype), tangent.shape)  # [4, n]
-  unit_i = geometry.opposite(shared)  # [4, n]: at (d, i), i's unit along e.
-  inv_i = safe_divide(k, unit_i)  # k_i / S_e(i): 0 for an immovable body.
-  inv_j = front.gather(safe_divide(k, shared))  # k_j / S_d(j).
-  inv_eff = inv_i[None] + inv_j
-  impulse = jnp.where(active, jnp.clip(safe_divide(sliding, inv_eff), -budget, budget), 0.0)
-  # Entry (d, i): i's unit along e changes its tangential velocity by -impulse / S_e(i).
-  source = geometry.opposite(safe_divide(-jnp.sum(impulse, axis=0), unit_i))  # At (e, i).
+  rubbing = (budget > 0) & (jnp.abs(sliding) > SLIP)  # Links friction solves.
   back = front.reversed()
-  carries = geometry.opposite(sticking, 1)  # Rows of `back`: k behind j, sticking.
-  count = jnp.sum(carries, axis=0).astype(dtype)  # Sticking bodies behind each body.
   movable = jnp.any(shared > 0, axis=0)[None]
 
-  def hop(total):  # A unit moves rigidly: each body takes the mean of its pushers'.
-    behind = back.reduce("sum", total, lambda k, x: jnp.where(carries[k], x, 0.0))
-    return jnp.where(movable, source + safe_divide(behind, count), 0.0)
+  def solve(shared, sticking, slipping, forced):
+    """Impulses on the units `shared` (made of `sticking` links); `slipping` links
+    carry `forced`. Returns `(impulse [l, 4, n], total [4, n], count [4, n])`: `total`
+    is each body's tangential velocity change as part of its unit along each direction,
+    `count` its sticking pushers along it."""
+    solved = rubbing & ~slipping
+    k = jnp.broadcast_to(jnp.sum(solved, axis=(0, 1)).astype(dtype), tangent.shape)  # [4, n]
+    unit_i = geometry.opposite(shared)  # [4, n]: at (d, i), i's unit along e.
+    inv_i = safe_divide(k, unit_i)  # k_i / S_e(i): 0 for an immovable body.
+    inv_j = front.gather(safe_divide(k, shared))  # k_j / S_d(j).
+    # The other links stop the sliding that remains once the slipping ones have acted
+    # on their own bodies (else a box under a slipping one would creep down a slope).
+    kinetic = safe_divide(-jnp.sum(jnp.where(slipping, forced, 0.0), axis=0), unit_i)
+    kinetic = jnp.stack([kinetic[0] + kinetic[1]] * 2 + [kinetic[2] + kinetic[3]] * 2)
+    after = tangent + kinetic
+    remaining = jnp.where(front.mask, after[None] - front.gather(after), 0.0)
+    stop = jnp.clip(safe_divide(remaining, inv_i[None] + inv_j), -budget, budget)
+    impulse = jnp.where(slipping, forced, jnp.where(rubbing, stop, 0.0))
+    # Entry (d, i): i's unit along e changes its tangential velocity by -impulse / S_e(i).
+    source = geometry.opposite(safe_divide(-jnp.sum(impulse, axis=0), unit_i))  # At (e, i).
+    carries = geometry.opposite(sticking, 1)  # Rows of `back`: k behind j, sticking.
+    count = jnp.sum(carries, axis=0).astype(dtype)  # Sticking bodies behind each body.
 
-  total = chain.repeat(hop, jnp.where(movable, source, 0.0), depth, converge)
+    def hop(total):  # A unit moves rigidly: each body takes the mean of its pushers'.
+      behind = back.reduce("sum", total, lambda k, x: jnp.where(carries[k], x, 0.0))
+      return jnp.where(movable, source + safe_divide(behind, count), 0.0)
+
+    total = chain.repeat(hop, jnp.where(movable, source, 0.0), depth, converge)
+    return impulse, total, count
+
+  impulse, total, count = solve(shared, sticking, jnp.zeros_like(sticking), budget)
+  shear = _holding(front, total, shared, count)
+  holds = jnp.abs(shear) <= budget
+  slipping = sticking & ~holds & (budget > 0)
+  sticking = sticking & holds
+  impulse, total, _ = solve(_units(front, mass, sticking, depth, converge), sticking, slipping,
+                            jnp.clip(shear, -budget, budget))
   # Units along x (e = 0, 1) slide along y, units along y along x.
   change = jnp.stack([total[2] + total[3], total[0] + total[1]], axis=-1)
   # Energy guard, as for the normal impulses: friction may only take energy, beyond
   # what a moving platform gives through its links.
   scale = chain.energy_scale(vel, change, impulse, front, mass, mass == 0, tangent)
   return vel + scale * change, lax.stop_gradient(scale < 1)
+
+
+def _holding(front: geometry.Links, total: jax.Array, shared: jax.Array,
+             count: jax.Array) -> jax.Array:
+  """`[l, 4, n]`: the tangential impulse each link must carry for the units to move
+  as one, signed like a friction impulse (entry `(d, i, j)`: momentum from i's side to
+  j's). Along d, j's unit `shared[d, j]` takes i's change `total[d, i]` (its share,
+  over j's `count[d, j]` sticking pushers); along e the same from j to i. Equal and
+  opposite in the rows of the link's two bodies."""
+  per_pusher = safe_divide(shared, count)  # [4, n]
+  to_j = total[None] * front.gather(per_pusher)
+  to_i = front.gather(geometry.opposite(total)) * geometry.opposite(per_pusher)[None]
+  return to_j - to_i
+
+
+def _units(front: geometry.Links, mass: jax.Array, sticking: jax.Array, depth: int,
+           converge: bool) -> jax.Array:
+  """`[4, n]` friction units made of the `sticking` links: `F_d(i) = m_i + sum over
+  i's front, through sticking links, of F_d(j) / (j's sticking pushers)` (as
+  `chain._link_impulses` builds them)."""
+  split = geometry.opposite(safe_divide(1.0, jnp.sum(sticking, axis=0).astype(mass.dtype)))
+  own = jnp.broadcast_to(mass, split.shape)
+
+  def hop(units):
+    return own + front.reduce("sum", units * split, lambda k, x: jnp.where(sticking[k], x, 0.0))
+
+  return chain.repeat(hop, own, depth, converge)
 
 
 def _safe_sqrt(x: jax.Array) -> jax.Array:
