@@ -20,7 +20,10 @@ Writes `results/conservation.md` and prints it.
 Scenes (`SCENES`; each function's `about` text says what is expected): head_on,
 free_chain, friction_contrast, edge_fall (and edge_fall_shallow, first contact less
 deep than the horizontal overlap), random_room, rider (and rider_up), crush_ceiling,
-crush_elevator.
+crush_elevator; with one-way bodies (jaxchain only: the peer adapters have none; their
+penetration is `jc.metrics.max_penetration`, which counts one-way pairs by the sink the
+one-way rule resolves) crush_ceiling_one_way, crush_elevator_one_way, one_way_rise (a
+box rising with its bottom in the one-way margin) and one_way_room.
 
     python benchmarks/conservation.py            # about 20 s on 2 cores
     python benchmarks/conservation.py --quick    # shorter room and chain runs
@@ -88,6 +91,7 @@ class Scene:
   figures: Callable
   kinematic: tuple[int, ...] = ()
   momentum: str | None = None
+  one_way: tuple[int, ...] = ()  # One-way (jump-through) bodies: jaxchain only.
 
   @property
   def movable(self) -> np.ndarray:
@@ -276,9 +280,69 @@ def crush_elevator(quick: bool) -> Scene:
       figures=figures)
 
 
+def crush_one_way(quick: bool, elevator: bool = False) -> Scene:
+  """crush_ceiling and crush_elevator with the floor or the elevator one-way."""
+  base = crush_elevator(quick) if elevator else crush_ceiling(quick)
+  what = "elevator" if elevator else "floor"
+
+  def figures(s, r):
+    return {f"max sink into {what}": f"{sink(r, s, 1, 0):.3f}", "box y end": f4(r.pos[-1, 1, 1]),
+            "outcome": squeeze_outcome(r, s, 1, 0, 2)}
+  return dataclasses.replace(
+      base, name=base.name + "_one_way", one_way=(0,), figures=figures,
+      about=base.about.replace("static floor", "one-way (jump-through) static floor").replace(
+          "kinematic elevator", "kinematic one-way (jump-through) elevator") + " One-way: "
+      "the one-way body must hold the crushed box like a solid one (jaxchain only: the peer "
+      "adapters have no one-way bodies).")
+
+
+def one_way_rise(quick: bool) -> Scene:
+  def figures(s, r):
+    return {"box y after 1 step": f4(r.pos[1, 1, 1]), "box vy after 1 step": f4(r.vel[1, 1, 1]),
+            "box y end": f4(r.pos[-1, 1, 1])}
+  return scene(
+      "one_way_rise", "A box of mass 80 rising at vy=+0.3 with its bottom 0.03 below the top of "
+      "a one-way ledge (top y=0; 0.03 is the one-way margin), gravity, no friction. It is "
+      "coming from below: the first step is free flight (y 0.4723, vy 0.1365, no energy "
+      "gain). At its peak, 0.028 below the top and falling, the ledge catches it: that "
+      "step lifts it onto the top, +m g (sink) (about 21 J), a start the penetration measure "
+      "counts (a sink within the margin); it ends resting on the ledge (y end +0.5).",
+      [box(0.0, -0.1, hx=3.0, hy=0.1, m=INF), box(0.0, 0.47, m=80.0, vy=0.3)],
+      gravity=G, friction=0.0, segments=[(60, {})], figures=figures, one_way=(0,))
+
+
+def one_way_room(quick: bool, seed: int = 0) -> Scene:
+  """random_room with two one-way ledges across it and a third of the boxes one-way."""
+  base = random_room(quick, seed)
+  w, h = ROOM_W, ROOM_H
+  ledges = [box(w / 4, h / 3, hx=w / 4, hy=0.05, m=INF), box(3 * w / 4, 2 * h / 3, hx=w / 4, hy=0.05, m=INF)]
+  keep = [k for k in range(4, len(base.pos))  # Boxes clear of the ledges (no overlap at the start).
+          if all(np.any(np.abs(base.pos[k] - np.array(l[0])) >= np.array(l[1]) + 0.5 + 0.02)
+                 for l in ledges)]
+  bodies = ([(tuple(base.pos[k]), tuple(base.half[k]), base.mass[k], tuple(base.vel[k]))
+             for k in range(4)] + ledges
+            + [(tuple(base.pos[k]), tuple(base.half[k]), base.mass[k], tuple(base.vel[k])) for k in keep])
+  crates = tuple(6 + i for i in range(len(keep)) if i % 3 == 0)
+
+  def figures(s, r):
+    p = r.pos[:, 6:]
+    out = (p[..., 0] < 0) | (p[..., 0] > w) | (p[..., 1] < 0) | (p[..., 1] > h)
+    return {"boxes that left the room": str(int(np.sum(np.any(out, axis=0)))),
+            "penetration end": f"{penetration(r.pos[-1:], s)[0]:.2e}"}
+  return scene(
+      "one_way_room", f"random_room (seed {seed}) with two one-way ledges (half-extents "
+      f"{w / 4:g} x 0.05, at y = {h / 3:.2f} and {2 * h / 3:.2f}) and every third box a "
+      f"one-way crate ({len(keep)} boxes, those clear of the ledges), gravity, friction 0.5. "
+      "Energy should only fall; no box leaves the room (jaxchain only). Penetration counts "
+      "one-way pairs too (a box resting on a ledge, a crate on a box).",
+      bodies, gravity=G, friction=0.5, segments=base.segments, figures=figures,
+      one_way=(4, 5) + crates)
+
+
 SCENES = (head_on, free_chain, friction_contrast, edge_fall,
           functools.partial(edge_fall, gap=0.15), random_room, rider,
-          functools.partial(rider, up=True), crush_ceiling, crush_elevator)
+          functools.partial(rider, up=True), crush_ceiling, crush_elevator, crush_one_way,
+          functools.partial(crush_one_way, elevator=True), one_way_rise, one_way_room)
 
 
 # --- Engines ---------------------------------------------------------------------------
@@ -373,8 +437,11 @@ WORLD_PHYSICS = "friction" in inspect.signature(jc.World.create).parameters
 def jaxchain_world(scene: Scene) -> tuple[jc.World, jc.Config]:
   """The scene as a jaxchain world and the config `Config.for_world` picks for it."""
   if WORLD_PHYSICS:
+    one_way = {}
+    if scene.one_way:  # Only worlds of a jaxchain with one-way bodies get the keyword.
+      one_way = dict(one_way=np.isin(np.arange(len(scene.pos)), scene.one_way))
     world = jc.World.create(scene.pos, scene.half, scene.mass, scene.vel,
-                            friction=scene.friction, gravity=scene.gravity)
+                            friction=scene.friction, gravity=scene.gravity, **one_way)
     cfg = jc.Config.for_world(world)
   else:
     world = jc.World.create(scene.pos, scene.half, scene.mass, scene.vel)
@@ -438,6 +505,19 @@ def load_engines() -> tuple[list, list[str]]:
 # --- Measures --------------------------------------------------------------------------
 
 
+def penetration(traj: np.ndarray, scene: Scene) -> np.ndarray:
+  """`[t]` largest penetration per state: `peers.penetration` (every pair not both
+  immovable), or for a scene with one-way bodies (which bodies pass from below and the
+  sides) `jc.metrics.max_penetration` (a one-way pair counts with a sink within the
+  one-way margin, the overlap the one-way rule resolves)."""
+  if not scene.one_way:
+    return peers.penetration(traj, scene)
+  world, _ = jaxchain_world(scene)
+  pos = jnp.asarray(traj, world.pos.dtype)
+  return np.asarray(jax.vmap(lambda p: jc.metrics.max_penetration(world.replace(pos=p)))(pos))
+
+
+
 def measures(scene: Scene, run: Run) -> dict[str, str]:
   """The columns every scene reports."""
   mov = scene.movable
@@ -454,7 +534,7 @@ def measures(scene: Scene, run: Run) -> dict[str, str]:
     mom = "-"
   return {"momentum error": mom, "max dE in a step": f"{np.max(d_energy):+.2e}",
           "total dE": f"{energy[-1] - energy[0]:+.3g}",
-          "max penetration": f"{np.max(peers.penetration(run.pos, scene)):.2e}",
+          "max penetration": f"{np.max(penetration(run.pos, scene)):.2e}",
           "failure reported": run.failure}
 
 
@@ -493,6 +573,9 @@ def main():
     for s in scenes:
       for e in engines:
         bar.set_postfix_str(f"{s.name} / {e.name}")
+        if s.one_way and not isinstance(e, JaxChain):  # The peer adapters have no one-way bodies.
+          bar.update()
+          continue
         run = e.run(s)
         rows[s.name].append({"engine": e.name, **measures(s, run), **s.figures(s, run)})
         messages += [f"{s.name}: {m}" for m in run.messages]
