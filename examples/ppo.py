@@ -83,6 +83,11 @@ class PPOConfig:
       after each rollout; clipped to +-10), as PureJaxRL's continuous-control
       wrapper does.
     squash: a Gaussian sample reaches the box through tanh instead of a clip.
+    obs_features: feed the networks only the first this many entries of the
+      (flattened) observation (None: all). With the vector observation, 9 + 8 * k
+      keeps the player and the first k slots: `--obs-features 73` on push_box_easy
+      keeps the player, box and goal features and leaves out the wall slots (as
+      `examples/es_push_box.py` does).
   """
 
   num_envs: int = 64
@@ -102,6 +107,7 @@ class PPOConfig:
   init_log_std: float = -0.5
   normalize_obs: bool = True
   squash: bool = False
+  obs_features: int | None = None
 
   @property
   def batch_size(self) -> int:
@@ -230,7 +236,18 @@ def to_env(head: Head, raw: jax.Array) -> jax.Array:
   return a.reshape(raw.shape[:-1] + head.shape).astype(head.dtype)
 
 
-# Observation statistics.
+# Observations.
+
+
+def features(config: PPOConfig | None, obs: jax.Array) -> jax.Array:
+  """A batch of observations `[B, ...]` as the networks' input `[B, k]`: flattened, and
+  cut to the first `config.obs_features` entries if that is set."""
+  flat = obs.reshape(obs.shape[0], -1)
+  if config is not None and config.obs_features is not None:
+    flat = flat[:, :config.obs_features]
+  return flat
+
+
 
 
 def init_norm(obs_size: int) -> dict:
@@ -322,6 +339,9 @@ def make_train(env, env_params, config: PPOConfig, *, verbose: bool = False, log
   """
   head = head_of(env.action_space(env_params), config.squash)
   obs_size = int(np.prod(env.observation_space(env_params).shape))
+  if config.obs_features is not None:
+    obs_size = min(obs_size, config.obs_features)
+  keep = lambda o: features(config, o)
   if config.batch_size % config.num_minibatches:
     raise ValueError(f"num_minibatches ({config.num_minibatches}) must divide num_envs * "
                      f"num_steps ({config.batch_size})")
@@ -371,12 +391,12 @@ def make_train(env, env_params, config: PPOConfig, *, verbose: bool = False, log
           jax.random.split(k_env, config.num_envs), env_state, to_env(head, raw), env_params)
       truncated = info["truncated"] & ~info["terminated"]
       final_value = value_fn(
-          theta, normalize(use_norm, info["final_obs"].reshape(config.num_envs, -1)))
+          theta, normalize(use_norm, keep(info["final_obs"])))
       reward = reward.astype(jnp.float32) + jnp.where(truncated, gamma * final_value, 0.0)
       t = Transition(obs, raw, logp, value, reward, info["terminated"], done,
                      info["episode_return"].astype(jnp.float32),
                      info["episode_length"].astype(jnp.float32), info["success"])
-      return (env_state, next_obs.reshape(config.num_envs, -1), key), (t, raw_obs)
+      return (env_state, keep(next_obs), key), (t, raw_obs)
 
     (env_state, obs, key), (traj, raw) = jax.lax.scan(env_step, (env_state, obs, key), None,
                                                       config.num_steps)
@@ -430,7 +450,7 @@ def make_train(env, env_params, config: PPOConfig, *, verbose: bool = False, log
     theta = init_policy(k_init, obs_size, head, config)
     opt_state = tx.init(theta)
     obs, env_state = v_reset(jax.random.split(k_reset, config.num_envs), env_params)
-    obs = obs.reshape(config.num_envs, -1)
+    obs = keep(obs)
     norm = init_norm(obs_size)
     (theta, _, norm, *_), curve = jax.lax.scan(
         update, (theta, opt_state, norm, env_state, obs, key), jnp.arange(n_updates))
@@ -451,10 +471,11 @@ def _print_row(row, n_updates):
 
 
 def make_evaluate(env, env_params, head: Head, max_steps: int, episodes: int = 256,
-                  deterministic: bool = True):
+                  deterministic: bool = True, config: PPOConfig | None = None):
   """`evaluate(policy, key) -> (success, return, level)`, each `[episodes]`: each episode
   from its own reset, played by the policy (its mode when `deterministic`) for up to
-  `max_steps` steps; only the first episode of each env counts. `level` is the
+  `max_steps` steps (the policy reads `features(config, obs)`, as in training); only
+  the first episode of each env counts. `level` is the
   episode's level index (`state.level`; -1 for an env whose state has none)."""
   v_reset = jax.vmap(env.reset, in_axes=(0, None))
   v_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
@@ -468,7 +489,7 @@ def make_evaluate(env, env_params, head: Head, max_steps: int, episodes: int = 2
     def body(c, k):
       obs, state, alive, ret, solved = c
       k_act, k_env = jax.random.split(k)
-      out = mlp(theta["actor"], normalize(policy["norm"], obs.reshape(episodes, -1)))
+      out = mlp(theta["actor"], normalize(policy["norm"], features(config, obs)))
       raw = mode(head, out) if deterministic else sample(theta, head, out, k_act)
       obs, state, reward, done, info = v_step(jax.random.split(k_env, episodes), state,
                                               to_env(head, raw), env_params)
@@ -604,6 +625,8 @@ def main(argv=None) -> int:
   parser.add_argument("--hidden", type=int, default=defaults.hidden)
   parser.add_argument("--init-log-std", type=float, default=defaults.init_log_std)
   parser.add_argument("--squash", action="store_true", help="tanh-squash Gaussian samples")
+  parser.add_argument("--obs-features", type=int, default=None, metavar="K",
+                      help="the policy reads only the first K observation entries")
   parser.add_argument("--no-normalize-obs", action="store_true",
                       help="feed raw observations (default: running standardisation)")
   parser.add_argument("--seed", type=int, default=0)
@@ -624,6 +647,7 @@ def main(argv=None) -> int:
                      num_minibatches=args.minibatches, lr=args.lr, gamma=args.gamma,
                      ent_coef=args.ent_coef, hidden=args.hidden,
                      init_log_std=args.init_log_std, squash=args.squash,
+                     obs_features=args.obs_features,
                      normalize_obs=not args.no_normalize_obs)
   head = head_of(env.action_space(env_params), config.squash)
   label = args.env + (f" ({args.level})" if args.level else "")
@@ -645,7 +669,8 @@ def main(argv=None) -> int:
         f"{config.num_updates * config.batch_size / run_s:.3g} env-steps/s", flush=True)
 
   steps = args.eval_steps or episode_limit(env, env_params)
-  evaluate = jax.jit(make_evaluate(env, env_params, head, steps, args.eval_episodes))
+  evaluate = jax.jit(make_evaluate(env, env_params, head, steps, args.eval_episodes,
+                                   config=config))
   t0 = time.perf_counter()
   solved, ret, level = jax.block_until_ready(evaluate(policy, jax.random.key(args.seed + 10_000)))
   eval_s = time.perf_counter() - t0
