@@ -13,14 +13,22 @@ layers composited by a `lax.scan` over the bodies, each step blending one body i
 the whole `[H, W, 3]` float image (under `vmap` the scan carries every frame of the
 batch, so each body streams the whole batch's images through memory). The new one
 composites up to `drawing.GROUP` (20) bodies in one fused pass, each pixel held in
-registers through the chain (`drawing._over`). Both give the same pixels (checked).
+registers through the chain (`drawing._over`), and on an AVX-512 CPU it is compiled
+with `drawing.CPU_OPTIONS` (512-bit vectors for its own compiled function, what a
+direct `jc.render` call does; timed here compiled ahead of time with those options);
+the baseline is compiled as it was, with XLA's defaults. Both give the same pixels
+(checked).
 
 Scenes: `sokoban3` (18 bodies, 3 goal sensors) padded to 20 slots, as the push_box
 env holds it, one pass; a closed room of 64 boxes (68 bodies,
 `scenes.lattice_room`), four passes of 17. Movable bodies jittered per world.
 
-    python benchmarks/render_throughput.py                    # a few minutes on 2 cores
+    python benchmarks/render_throughput.py                    # about 7 minutes on 2 cores
     python benchmarks/render_throughput.py --smoke --out /tmp/r   # tiny: runs, writes
+
+A second table times the first scene again in a fresh process with
+`XLA_FLAGS=--xla_cpu_prefer_vector_width=512`, so that the baseline gets 512-bit vectors
+too (the gain of the formulation alone), and checks that the pixels are the same.
 
 Formulations tried on this machine before choosing (2 cores, load 15-20, CPU time per
 frame, B = 1024, 64 x 64, 20 slots unless said; ratios against the baseline in the
@@ -38,8 +46,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import functools
+import hashlib
+import json
+import os
 import pathlib
+import subprocess
+import sys
 import time
 
 import jax
@@ -54,6 +66,10 @@ RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 SIZES = ((64, 64), (96, 160))
 BATCHES = (1, 64, 1024)
 SLOTS = 20
+# The XLA flag of the second table: XLA:CPU vectorises for 256-bit registers by default;
+# on an AVX-512 machine this lets it use 512-bit ones (a process-wide choice, the user's:
+# jaxchain never sets flags).
+WIDE = "--xla_cpu_prefer_vector_width=512"
 
 
 def level_batch(batch: int, seed: int = 0):
@@ -110,11 +126,12 @@ def baseline(world, size, bounds, player=0, palette=drawing.PALETTE):
 
 
 def timed(fns: dict, args, repeats: int) -> dict:
-  """name -> (compile s, median wall s, median CPU s, result); calls interleaved."""
+  """name -> (compile s, median wall s, median CPU s, result); calls interleaved.
+  `fns`: name -> (function, compile options)."""
   compiled, out, results = {}, {}, {}
-  for name, fn in fns.items():
+  for name, (fn, options) in fns.items():
     t0 = time.perf_counter()
-    compiled[name] = jax.jit(fn).lower(*args).compile()
+    compiled[name] = jax.jit(fn, compiler_options=options or None).lower(*args).compile()
     out[name] = [time.perf_counter() - t0, [], []]
     results[name] = jax.block_until_ready(compiled[name](*args))
   for _ in range(repeats):
@@ -129,12 +146,15 @@ def timed(fns: dict, args, repeats: int) -> dict:
 
 def setting(scene: str, size, batch: int, repeats: int) -> dict:
   world, bounds = SCENES[scene](batch)
-  fns = {"render": lambda w: jc.render(w, size, bounds, player=0),
-         "baseline": lambda w: baseline(w, size, bounds)}
+  # `render` as a direct call compiles itself with `drawing.CPU_OPTIONS`; here it is
+  # compiled ahead of time (to time the compile apart), with the same options.
+  fns = {"render": (lambda w: jc.render(w, size, bounds, player=0), dict(drawing.CPU_OPTIONS)),
+         "baseline": (lambda w: baseline(w, size, bounds), None)}
   t = timed(fns, (world,), repeats)
   (c_new, w_new, p_new, new), (c_old, w_old, p_old, old) = t["render"], t["baseline"]
   same = np.abs(np.asarray(new).astype(int) - np.asarray(old).astype(int)).max()
-  return dict(scene=scene, size=size, batch=batch, bodies=world.num_bodies,
+  return dict(scene=scene, size=list(size), batch=batch, bodies=world.num_bodies,
+              digest=hashlib.sha256(np.asarray(new).tobytes()).hexdigest(),
               passes=drawing._groups(world.num_bodies)[0], compile_s=c_new, compile_old_s=c_old,
               fps=batch / w_new, fps_old=batch / w_old, cpu_fps=batch / p_new,
               cpu_fps_old=batch / p_old, max_diff=int(same))
@@ -149,11 +169,17 @@ def main():
   parser.add_argument("--out", type=pathlib.Path, default=RESULTS, metavar="DIR",
                       help="directory to write the table to (default benchmarks/results)")
   parser.add_argument("--repeats", type=int, default=5, help="timed calls per setting")
+  parser.add_argument("--wide", action="store_true",
+                      help="internal: the second table's run (started by the script itself with "
+                           "XLA_FLAGS=" + WIDE + "); prints its rows as JSON")
   args = parser.parse_args()
+  first = next(iter(SCENES))
   plan = [(scene, size, batch) for scene in SCENES for size in SIZES for batch in BATCHES]
+  if args.wide:
+    plan = [p for p in plan if p[0] == first]
   repeats = args.repeats
   if args.smoke:
-    plan, repeats = [(next(iter(SCENES)), (16, 16), 2)], 1
+    plan, repeats = [(first, (16, 16), 2)], 1
   header = machine()
   started = time.perf_counter()
   rows = []
@@ -162,33 +188,79 @@ def main():
     r = rows[-1]
     print(f"{scene}, {size[0]}x{size[1]}, B={batch}: {r['fps']:.3g} frames/s "
           f"({r['fps'] / r['fps_old']:.2f}x baseline), {r['cpu_fps']:.3g} frames/CPU-s "
-          f"({r['cpu_fps'] / r['cpu_fps_old']:.2f}x)", flush=True)
-  write(rows, args, header, time.perf_counter() - started)
+          f"({r['cpu_fps'] / r['cpu_fps_old']:.2f}x)", file=sys.stderr if args.wide else sys.stdout,
+          flush=True)
+  if args.wide:
+    print(json.dumps(rows))
+    return
+  wide = wide_rows(args, repeats)
+  write(rows, wide, args, header, time.perf_counter() - started)
 
 
-def write(rows, args, header, wall_s) -> None:
+def wide_rows(args, repeats) -> list[dict]:
+  """The first scene's settings again in a fresh process with `XLA_FLAGS` += `WIDE`."""
+  env = dict(os.environ, XLA_FLAGS=(os.environ.get("XLA_FLAGS", "") + " " + WIDE).strip())
+  command = [sys.executable, __file__, "--wide", "--repeats", str(repeats)]
+  out = subprocess.run(command + (["--smoke"] if args.smoke else []), env=env, check=True,
+                       stdout=subprocess.PIPE, text=True)
+  return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _table(rows, plain=None) -> list[str]:
+  """Markdown rows; with `plain` (the default-flag rows), whether each frame batch had
+  the same pixels as without the flag."""
+  head = ("| scene | H x W | B | passes | compile s | frames/s | baseline frames/s | ratio | "
+          "frames / CPU-s | baseline | ratio | max diff |")
+  rule = "|---|---|---|---|---|---|---|---|---|---|---|---|"
+  if plain is not None:
+    head, rule = head + " same pixels as without the flag |", rule + "---|"
+    plain = {(r["scene"], tuple(r["size"]), r["batch"]): r["digest"] for r in plain}
+  lines = [head, rule]
+  for r in rows:
+    line = (f"| {r['scene']} | {r['size'][0]} x {r['size'][1]} | {r['batch']} | {r['passes']} | "
+            f"{r['compile_s']:.1f} | {r['fps']:.3g} | {r['fps_old']:.3g} | "
+            f"{r['fps'] / r['fps_old']:.2f} | {r['cpu_fps']:.3g} | {r['cpu_fps_old']:.3g} | "
+            f"{r['cpu_fps'] / r['cpu_fps_old']:.2f} | {r['max_diff']} |")
+    if plain is not None:
+      key = (r["scene"], tuple(r["size"]), r["batch"])
+      line += f" {'yes' if plain.get(key) == r['digest'] else 'NO'} |"
+    lines.append(line)
+  return lines
+
+
+def _avx512() -> bool:
+  try:
+    return "avx512f" in pathlib.Path("/proc/cpuinfo").read_text()
+  except OSError:
+    return False
+
+
+def write(rows, wide, args, header, wall_s) -> None:
   command = "python benchmarks/render_throughput.py" + (" --smoke" if args.smoke else "")
+  if os.environ.get("XLA_FLAGS"):
+    command = f"XLA_FLAGS='{os.environ['XLA_FLAGS']}' {command}"
   lines = [
       "# Render throughput (`jc.render`)",
       "",
       f"`{command}`, {header}; {wall_s:.0f} s in all.",
       "",
-      "Timed: one jitted `jc.render(worlds, size, bounds, player=0)` on a batch of B worlds; "
-      "compile apart; median of interleaved calls, wall clock and CPU time of the process. "
-      "Baseline: the previous formulation (a `lax.scan` over the bodies blending each into "
-      "the whole image, vmapped), same layers, timed in the same run; 'max diff' is the "
-      "largest difference of a colour channel between the two (0: the same pixels).",
+      "Timed: one jitted `jc.render(worlds, size, bounds, player=0)` on a batch of B worlds, "
+      f"compiled with `drawing.CPU_OPTIONS` ({dict(drawing.CPU_OPTIONS)}: what a direct call "
+      "uses); compile apart; median of interleaved calls, wall clock and CPU time of the "
+      "process. Baseline: the previous renderer (a `lax.scan` over the bodies blending each "
+      "into the whole image, vmapped), same layers, XLA's default options, timed in the same "
+      "run; 'max diff' is the largest difference of a colour channel between the two (0: the "
+      "same pixels).",
       "",
-      "| scene | H x W | B | passes | compile s | frames/s | baseline frames/s | ratio | "
-      "frames / CPU-s | baseline | ratio | max diff |",
-      "|---|---|---|---|---|---|---|---|---|---|---|---|",
-  ]
-  for r in rows:
-    lines.append(
-        f"| {r['scene']} | {r['size'][0]} x {r['size'][1]} | {r['batch']} | {r['passes']} | "
-        f"{r['compile_s']:.1f} | {r['fps']:.3g} | {r['fps_old']:.3g} | "
-        f"{r['fps'] / r['fps_old']:.2f} | {r['cpu_fps']:.3g} | {r['cpu_fps_old']:.3g} | "
-        f"{r['cpu_fps'] / r['cpu_fps_old']:.2f} | {r['max_diff']} |")
+  ] + _table(rows) + [
+      "",
+      f"Both with 512-bit vectors: the first scene again, in a fresh process with "
+      f"`XLA_FLAGS={WIDE}`, so that the baseline gets them too and the ratio is the "
+      f"formulation's alone (XLA:CPU vectorises for 256-bit registers unless told; this "
+      f"machine {'has' if _avx512() else 'does not have'} AVX-512). The pixels are checked "
+      f"against the run without the flag.",
+      "",
+  ] + _table(wide, rows)
   lines += ["", "Frames / CPU-s: frames per second of CPU time summed over the process's "
             "threads, which moves much less with the machine's load than the wall clock does. "
             "On a quiet machine the wall-clock rate is about this figure times the number of "

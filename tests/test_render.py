@@ -190,6 +190,16 @@ def test_a_clip_has_one_camera_holding_every_step():
   np.testing.assert_array_equal(frames[-1], last)
 
 
+def test_inside_a_callers_jit_the_same_pixels(image):
+  # A direct call compiles with drawing.CPU_OPTIONS (on an AVX-512 CPU); inside a jit
+  # (traced inputs, or constants only) JAX takes no compile options: the plain one.
+  np.testing.assert_array_equal(jax.jit(lambda w: jc.render(w, SIZE, BOUNDS, player=PLAYER))(
+      WORLD), image)
+  np.testing.assert_array_equal(jax.jit(lambda: jc.render(WORLD, SIZE, BOUNDS, player=PLAYER))(),
+                                image)
+  assert set(drawing.CPU_OPTIONS) <= {"xla_cpu_prefer_vector_width"}
+
+
 def test_second_call_does_not_compile():
   jc.render(WORLD, SIZE, BOUNDS, player=PLAYER)
   moved = WORLD.replace(pos=WORLD.pos + 0.5)  # New values (eager ops compile too: not inside).
