@@ -53,8 +53,9 @@ class World:
       says movable body i was linked (touching within the skin, or overlapping) to
       a body lying in direction d from it (`geometry.DIRECTIONS`: +x, -x, +y, -y)
       in some pass of the step. `jc.grounded(world)` is `touching[..., 3]`.
-    sensed: `[n]` bool array, output written by every step: sensor i overlaps, at
-      the end of the step, an active body its mask admits.
+    sensed: `[n]` bool array, output written by every step: sensor i overlapped, at
+      some moment of the step (every substep, swept over its motion: `flags.sensed`),
+      an active movable body its mask admits.
     status: `[]` int32, failure bits (`jaxchain.status`) ORed in by every step and
       kept until the user clears them; `jc.check(world)` explains them.
   """
