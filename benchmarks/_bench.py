@@ -1,15 +1,45 @@
-"""Shared by the benchmark scripts: timing (compile apart, median of repeats), the
-machine line every result file starts with, and the log-log plot."""
+"""Shared by the benchmark scripts: the `--smoke` and `--out` options every script
+offers, timing (compile apart, median of repeats), the machine line every result file
+starts with, and the log-log plot."""
 
 from __future__ import annotations
 
+import argparse
 import os
+import pathlib
 import platform
 import statistics
 import time
 
 import jax
 import numpy as np
+
+# Where the scripts write their tables and plots unless given `--out`.
+RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+
+
+def add_common_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+  """Adds the options every benchmark script offers (`tests/test_benchmarks.py` runs
+  each script with both, so a script without them fails the suite):
+
+  - `--smoke`: tiny sizes, a few settings and steps, no waiting: seconds, not minutes.
+    It runs the script's whole code path and writes its tables; the figures mean
+    nothing.
+  - `--out DIR`: the directory for the tables and plots (default `benchmarks/results`,
+    the committed ones; the smoke test writes to a temporary directory).
+  """
+  parser.add_argument("--smoke", action="store_true",
+                      help="tiny sizes, a few seconds: checks that the script runs and writes its "
+                           "tables (the figures mean nothing)")
+  parser.add_argument("--out", type=pathlib.Path, default=RESULTS, metavar="DIR",
+                      help="directory to write the tables and plots to (default benchmarks/results)")
+  return parser
+
+
+def out_dir(args: argparse.Namespace) -> pathlib.Path:
+  """`args.out`, created if missing."""
+  args.out.mkdir(parents=True, exist_ok=True)
+  return args.out
 
 
 def median_time(fn, repeats: int, budget_s: float = float("inf")):

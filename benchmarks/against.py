@@ -11,6 +11,7 @@ fixed-depth hop loops a gradient needs). Writes `results/against.md`.
 
     python benchmarks/against.py                       # against b26b41f and bafbcc8
     python benchmarks/against.py --against b26b41f --rounds 5 --batch 1024
+    python benchmarks/against.py --smoke --out /tmp/x   # HEAD exported, a 2-step demo: runs, writes
 """
 
 from __future__ import annotations
@@ -27,10 +28,11 @@ import time
 
 from tqdm import tqdm
 
-from _bench import machine
+from _bench import add_common_args, machine, out_dir
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
+# `--smoke`: the cheapest demo to compile (no chain hops, no friction, no converging loops).
+SMOKE_DEMO = ["--depth", "0", "--no-converge", "--friction", "0"]
 FIGURES = {"compile": r"compile time\s+([\d.]+) s", "world_steps": r"world-steps/s\s+([\d.e+]+)"}
 
 
@@ -66,13 +68,18 @@ def main():
   parser.add_argument("--batch", type=int, default=1024)
   parser.add_argument("--steps", type=int, default=300)
   parser.add_argument("--rounds", type=int, default=3)
-  args = parser.parse_args()
+  args = add_common_args(parser).parse_args()
+  if args.smoke:  # The working tree and HEAD (exported by `git archive`), once each, tiny.
+    args.against, args.batch, args.steps, args.rounds = ["HEAD"], 2, 2, 1
   header = machine()
   started = time.perf_counter()
   demo = ["demo", "--batch", str(args.batch), "--steps", str(args.steps), "--no-progress"]
+  if args.smoke:
+    demo += SMOKE_DEMO
   with tempfile.TemporaryDirectory() as tmp:
-    trees = {"working tree": (ROOT / "src", demo),
-             "working tree, --no-converge": (ROOT / "src", demo + ["--no-converge"])}
+    trees = {"working tree": (ROOT / "src", demo)}
+    if not args.smoke:
+      trees["working tree, --no-converge"] = (ROOT / "src", demo + ["--no-converge"])
     for rev in args.against:
       trees[rev] = (export(rev, pathlib.Path(tmp)), demo)
     runs = {name: [] for name in trees}
@@ -88,7 +95,7 @@ def write(runs, args, header, wall_s) -> None:
   lines = [
       "# The demo beside earlier commits",
       "",
-      f"`python benchmarks/against.py --against {' '.join(args.against)} --batch {args.batch} "
+      f"`python benchmarks/against.py{' --smoke' * args.smoke} --against {' '.join(args.against)} --batch {args.batch} "
       f"--steps {args.steps} --rounds {args.rounds}`, {header}; {wall_s:.0f} s. Each tree runs "
       f"`jaxchain demo --batch {args.batch} --steps {args.steps} --no-progress` in a fresh "
       "interpreter, rounds alternating the trees; medians over rounds.",
@@ -101,8 +108,7 @@ def write(runs, args, header, wall_s) -> None:
     ratios = " | ".join(f"{m['world_steps'] / b:.2f}x" for b in base.values())
     lines.append(f"| {name} | {m['world_steps']:.4g} | {1e6 / m['world_steps']:.1f} | "
                  f"{m['compile']:.2f} | {ratios} |")
-  RESULTS.mkdir(exist_ok=True)
-  (RESULTS / "against.md").write_text("\n".join(lines) + "\n")
+  (out_dir(args) / "against.md").write_text("\n".join(lines) + "\n")
   print("\n".join(lines))
 
 

@@ -27,6 +27,7 @@ box rising with its bottom in the one-way margin) and one_way_room.
 
     python benchmarks/conservation.py            # about 20 s on 2 cores
     python benchmarks/conservation.py --quick    # shorter room and chain runs
+    python benchmarks/conservation.py --smoke --out /tmp/x   # head_on only: runs, writes
 """
 
 from __future__ import annotations
@@ -50,9 +51,8 @@ from tqdm import tqdm
 
 import jaxchain as jc
 import peers  # Box2D / pymunk adapters (imports, versions) and the penetration measure.
-from _bench import machine
+from _bench import add_common_args, machine, out_dir
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 INF = np.inf
 DT = 1 / 60
 G = (0.0, -9.81)
@@ -560,13 +560,13 @@ def jaxchain_source() -> str:
 def main():
   parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--quick", action="store_true", help="shorter room and chain runs")
-  args = parser.parse_args()
+  args = add_common_args(parser).parse_args()
   t0 = time.perf_counter()
   host = machine()
   engines, skipped = load_engines()
   for line in skipped:
     print(line, file=sys.stderr)
-  scenes = [make(args.quick) for make in SCENES]
+  scenes = [make(args.quick or args.smoke) for make in (SCENES[:1] if args.smoke else SCENES)]
   rows = {s.name: [] for s in scenes}
   messages = []
   with tqdm(total=len(scenes) * len(engines), desc="scenes x engines", unit="run") as bar:
@@ -583,11 +583,11 @@ def main():
   wall_s = time.perf_counter() - t0
   env = os.environ.get("PYTHONPATH")
   command = (f"PYTHONPATH={env} " if env else "") + "python benchmarks/conservation.py" + (
-      " --quick" if args.quick else "")
-  write(command, host, engines, skipped, scenes, rows, messages, wall_s)
+      " --smoke" if args.smoke else " --quick" if args.quick else "")
+  write(command, host, engines, skipped, scenes, rows, messages, wall_s, out_dir(args))
 
 
-def write(command, host, engines, skipped, scenes, rows, messages, wall_s) -> None:
+def write(command, host, engines, skipped, scenes, rows, messages, wall_s, out) -> None:
   api = ("`World.create(..., friction=, gravity=)` + `Config.for_world(world)`" if WORLD_PHYSICS
          else "`Config.for_world(world, gravity=, friction=)` (the World.create of this commit "
               "takes no physics)")
@@ -634,8 +634,7 @@ def write(command, host, engines, skipped, scenes, rows, messages, wall_s) -> No
     lines.append("")
   lines += ["## jaxchain `jc.check` messages", ""]
   lines += [f"- {m}" for m in messages] or ["- none"]
-  RESULTS.mkdir(exist_ok=True)
-  (RESULTS / "conservation.md").write_text("\n".join(lines) + "\n")
+  (out / "conservation.md").write_text("\n".join(lines) + "\n")
   print("\n".join(lines))
 
 

@@ -10,12 +10,12 @@ random policy's successes). Writes `results/env_throughput.md`.
 
     python benchmarks/env_throughput.py            # about 4 minutes on 2 cores
     python benchmarks/env_throughput.py --quick    # shorter calls, fewer repeats
+    python benchmarks/env_throughput.py --smoke --out /tmp/x   # one task, B=2: runs, writes
 """
 
 from __future__ import annotations
 
 import argparse
-import pathlib
 import time
 
 import jax
@@ -24,17 +24,16 @@ import numpy as np
 from tqdm import tqdm
 
 import jaxchain as jc
-from _bench import compile_and_time, machine
+from _bench import add_common_args, compile_and_time, machine, out_dir
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 TASKS = ("push_box", "reach_flag")
 BATCHES = (1, 64, 1024, 4096)
 
 
-def setting(task: str, batch: int, env_steps: int, repeats: int) -> dict:
+def setting(task: str, batch: int, env_steps: int, repeats: int, min_steps: int = 10) -> dict:
   env, params = jc.env.make(task)
   space = env.action_space(params)
-  steps = int(np.clip(env_steps // batch, 10, 1000))
+  steps = int(np.clip(env_steps // batch, min_steps, 1000))
   vstep = jax.vmap(env.step, in_axes=(0, 0, 0, None))
   obs, state = jax.vmap(env.reset, in_axes=(0, None))(
       jax.random.split(jax.random.key(0), batch), params)
@@ -67,8 +66,11 @@ def main():
                       help="about 4e4 env-steps per timed call (else 2e5), 2 repeats (else 3)")
   parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=jc.env.TASKS)
   parser.add_argument("--batches", type=int, nargs="+", default=list(BATCHES))
-  args = parser.parse_args()
+  args = add_common_args(parser).parse_args()
   env_steps, repeats = (40_000, 2) if args.quick else (200_000, 3)
+  if args.smoke:
+    # One task (the first asked for), 2 envs, 4 steps a call: the env's whole path, once.
+    args.tasks, args.batches, env_steps, repeats = args.tasks[:1], [2], 8, 1
   header = machine()
   started = time.perf_counter()
   rows = []
@@ -76,15 +78,16 @@ def main():
   with tqdm(plan, desc="env throughput", unit="setting") as bar:
     for task, batch in bar:
       bar.set_postfix(task=task, B=batch)
-      rows.append(setting(task, batch, env_steps, repeats))
+      rows.append(setting(task, batch, env_steps, repeats, min_steps=4 if args.smoke else 10))
   write(rows, args, header, time.perf_counter() - started)
 
 
 def write(rows, args, header, wall_s) -> None:
-  command = "python benchmarks/env_throughput.py" + (" --quick" if args.quick else "")
-  if args.tasks != list(TASKS):
+  command = "python benchmarks/env_throughput.py" + (" --smoke" if args.smoke else
+                                                     " --quick" if args.quick else "")
+  if args.tasks != list(TASKS) and not args.smoke:
     command += " --tasks " + " ".join(args.tasks)
-  if args.batches != list(BATCHES):
+  if args.batches != list(BATCHES) and not args.smoke:
     command += " --batches " + " ".join(map(str, args.batches))
   lines = [
       "# Environment throughput (random policy)",
@@ -111,8 +114,7 @@ def write(rows, args, header, wall_s) -> None:
     best = max(one, key=lambda r: r["env_steps"])
     lines.append(f"- {task}: highest {best['env_steps']:.3g} env-steps/s at B={best['batch']}, "
                  f"{best['env_steps'] / one[0]['env_steps']:.1f}x the rate at B={one[0]['batch']}")
-  RESULTS.mkdir(exist_ok=True)
-  (RESULTS / "env_throughput.md").write_text("\n".join(lines) + "\n")
+  (out_dir(args) / "env_throughput.md").write_text("\n".join(lines) + "\n")
   print("\n".join(lines))
 
 

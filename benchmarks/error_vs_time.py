@@ -21,13 +21,13 @@ method, Pareto front marked).
 
     python benchmarks/error_vs_time.py           # about 30 minutes on 2 cores
     python benchmarks/error_vs_time.py --quick   # fewer scenes and settings
+    python benchmarks/error_vs_time.py --smoke --out /tmp/x   # 1 scene, 1 setting: runs, writes
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import pathlib
 import time
 
 import jax
@@ -36,9 +36,8 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import metrics, reference, scenes
-from _bench import compile_and_time, machine, median_time
+from _bench import add_common_args, compile_and_time, machine, median_time, out_dir
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 DEPTHS = (0, 1, 2, 4, 8, 16, 32, 64)
 ITERATIONS = (1, 2, 4, 8, 16, 32)
 SUBSTEPS = (1, 2, 4)
@@ -76,10 +75,12 @@ def loose_pile(rng, n: int) -> scenes.Scene:
   return scenes.Scene(pos, half, np.r_[INF, rng.uniform(0.5, 2, n)])
 
 
-def families(quick: bool) -> dict[str, tuple[scenes.Scene, bool]]:
+def families(quick: bool, smoke: bool = False) -> dict[str, tuple[scenes.Scene, bool]]:
   """name -> (scene, reference defined)."""
   rng = np.random.default_rng(0)
   masses = lambda n: rng.uniform(0.5, 2.0, n)
+  if smoke:  # One small scene with a reference.
+    return {"chain L=4 wall": (scenes.push_chain(4, 0.3, True, masses(5), rng.uniform(0, .1, 3)), True)}
   out = {}
   for L in ((4, 16) if quick else (4, 16, 64)):
     out[f"chain L={L} wall"] = (scenes.push_chain(L, 0.3, True, masses(L + 1), rng.uniform(0, .1, L - 1)), True)
@@ -95,7 +96,9 @@ def families(quick: bool) -> dict[str, tuple[scenes.Scene, bool]]:
   return out
 
 
-def settings(quick: bool):
+def settings(quick: bool, smoke: bool = False):
+  if smoke:
+    return [(2, 1, 1)]
   depths = (0, 1, 4, 16) if quick else DEPTHS
   iterations = (1, 4, 16) if quick else ITERATIONS
   # Skip settings that do more hop work than any scene here can use: (K + 1) * iterations
@@ -136,18 +139,21 @@ def main():
   parser.add_argument("--batch", type=int, default=64, help="worlds per timed call (default 64)")
   parser.add_argument("--repeats", type=int, default=5)
   parser.add_argument("--replot", action="store_true",
-                      help="rewrite the table and plot from results/error_vs_time.json, no run")
-  args = parser.parse_args()
+                      help="rewrite the table and plot from error_vs_time.json in --out, no run")
+  args = add_common_args(parser).parse_args()
+  out = out_dir(args)
   if args.replot:
-    saved = json.loads((RESULTS / "error_vs_time.json").read_text())
-    write(saved["rows"], argparse.Namespace(**saved["args"]))
+    saved = json.loads((out / "error_vs_time.json").read_text())
+    write(saved["rows"], argparse.Namespace(**{"smoke": False, **saved["args"], "out": out}))
     return
-  RESULTS.mkdir(exist_ok=True)
   args.machine = machine()
-  fams = families(args.quick)
-  plan = settings(args.quick)
+  if args.smoke:
+    args.batch, args.repeats = 2, 1
+  fams = families(args.quick, args.smoke)
+  plan = settings(args.quick, args.smoke)
+  sweeps_of_old = ITERATIONS[:1] if args.smoke else ITERATIONS
   rows = []
-  total = len(fams) * (len(plan) + len(ITERATIONS))
+  total = len(fams) * (len(plan) + len(sweeps_of_old))
   started = time.perf_counter()
   with tqdm(total=total, desc="error vs time", unit="setting") as bar:
     for name, (scene, has_ref) in fams.items():
@@ -165,14 +171,15 @@ def main():
         rows.append(dict(family=name, method=method, depth=k, iterations=it, substeps=sub,
                          time=t, **score(scene, pos, want, as_f32)))
         bar.update()
-      for sweeps in ITERATIONS:
+      for sweeps in sweeps_of_old:
         t, pos = time_old(scene, sweeps, max(1, args.repeats // 2))
         rows.append(dict(family=name, method="old sequential (NumPy, 1 world)", depth=0,
                          iterations=sweeps, substeps=1, time=t,
                          **score(scene, pos, want, scene.pos)))
         bar.update()
   args.wall_s = time.perf_counter() - started
-  (RESULTS / "error_vs_time.json").write_text(json.dumps(dict(args=vars(args), rows=rows), indent=0))
+  saved = {k: v for k, v in vars(args).items() if k != "out"}  # Not JSON; not a result.
+  (out / "error_vs_time.json").write_text(json.dumps(dict(args=saved, rows=rows), indent=0))
   write(rows, args)
   print(f"wall time {args.wall_s:.0f} s")
 
@@ -219,8 +226,9 @@ def summary(rows) -> list[str]:
 
 
 def write(rows, args) -> None:
-  RESULTS.mkdir(exist_ok=True)
-  cmd = "python benchmarks/error_vs_time.py" + (" --quick" if args.quick else "")
+  out = out_dir(args)
+  cmd = "python benchmarks/error_vs_time.py" + (" --smoke" if args.smoke else
+                                                " --quick" if args.quick else "")
   wall = f"; {args.wall_s / 60:.0f} minutes in all" if getattr(args, "wall_s", None) else ""
   lines = [
       "# Error against run time", "",
@@ -242,14 +250,14 @@ def write(rows, args) -> None:
           f"{r['max_pen']:.2e} | {r['mean_pen']:.2e} | {r['ref_dist']:.2e} | {r['com_drift']:.2e} | "
           f"{r['fixed_moved']:.0e} | {'*' if id(r) in front else ''} |")
     lines.append("")
-  (RESULTS / "error_vs_time.md").write_text("\n".join(lines))
-  plot(rows)
+  (out / "error_vs_time.md").write_text("\n".join(lines))
+  plot(rows, out)
   print("\n".join(lines[:8]))
   moved = max(r["fixed_moved"] for r in rows)
   print(f"largest movement of an immovable body over all settings: {moved}")
 
 
-def plot(rows) -> None:
+def plot(rows, out) -> None:
   import matplotlib
   matplotlib.use("Agg")
   import matplotlib.pyplot as plt
@@ -280,7 +288,7 @@ def plot(rows) -> None:
   fig.legend(handles, labels, loc="lower center", ncol=6, fontsize=7)
   fig.suptitle(f"jaxchain: error against time per world-step (errors below {floor:g} drawn at {floor:g})")
   fig.tight_layout(rect=(0, 0.06, 1, 0.97))
-  fig.savefig(RESULTS / "error_vs_time.png", dpi=110)
+  fig.savefig(out / "error_vs_time.png", dpi=110)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""jaxchain beside peer engines (Box2D, pymunk, Jax2D) on the same two scenes.
+"""jaxchain beside peer engines (Box2D 2.3, Box2D v3, pymunk, Jax2D) on the same two scenes.
 
 Scenes, built once as host arrays and fed to every engine in this process:
 
@@ -17,12 +17,14 @@ Scenes, built once as host arrays and fed to every engine in this process:
 All boxes have fixed rotation in every engine (Box2D `fixedRotation`, pymunk
 infinite moment, Jax2D zero inverse inertia): jaxchain boxes stay axis-aligned,
 and penetration is measured from centres and half-extents. Engines that do not
-import are skipped with a message (`pip install -e .[peers]` installs them). Before
+import are skipped with a message (`pip install -e .[peers]` installs them; Box2D v3,
+PyPI `box2d-python`, ships wheels for Python 3.12 and later only). Before
 timing, waits (up to `--wait` s) until no other benchmark or pytest runs, and says
 in the output whether it got a quiet machine. Writes `results/peers.md`.
 
     python benchmarks/peers.py            # full run, about 2.5 minutes on 2 cores
     python benchmarks/peers.py --quick    # N in (16, 64), batches of 64 only
+    python benchmarks/peers.py --smoke --out /tmp/x   # N=8, a few steps, no wait: runs, writes
 """
 
 from __future__ import annotations
@@ -31,7 +33,6 @@ import argparse
 import datetime
 import importlib.metadata
 import os
-import pathlib
 import platform
 import statistics
 import subprocess
@@ -44,9 +45,8 @@ import numpy as np
 from tqdm import tqdm
 
 import jaxchain as jc
-from _bench import compile_and_time
+from _bench import add_common_args, compile_and_time, out_dir
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 INF = np.inf
 DT = 1 / 60
 GRAVITY = -9.81
@@ -181,6 +181,52 @@ class Box2D:
           traj[t] = [tuple(b.position) for b in bodies]
       sec = time.perf_counter() - t0
       final = np.array([tuple(b.position) for b in bodies])
+      return (traj if record else final), sec
+    return run_python(once, repeats)
+
+
+class Box2DV3:
+  """Box2D v3 through `box2d-python` (CFFI bindings): `box2d.World`, fixed-rotation
+  boxes, 4 substeps a step (v3's soft-step solver and its default), no sleeping.
+  Friction mixes as sqrt(f_a f_b), as in 2.3: each box gets 0.5."""
+
+  name = "Box2D v3"
+  jitted = False
+
+  def __init__(self):
+    import box2d  # PyPI box2d-python (not pybox2d's `Box2D`).
+    self.b2 = box2d
+    self.version = f"Box2D v3 (box2d-python {importlib.metadata.version('box2d-python')})"
+
+  def build(self, scene: Scene):
+    world = self.b2.World(gravity=(0.0, GRAVITY))
+    world.enable_sleep = False
+    bodies = []
+    for p, h, m in zip(scene.pos, scene.half, scene.mass):
+      builder = world.new_body().position(float(p[0]), float(p[1]))
+      if np.isinf(m):
+        builder = builder.static().box(2 * h[0], 2 * h[1], friction=FRICTION, restitution=0.0)
+      else:
+        builder = builder.dynamic().fixed_rotation().box(
+            2 * h[0], 2 * h[1], density=m / (4 * h[0] * h[1]), friction=FRICTION, restitution=0.0)
+      bodies.append(builder.build())
+    return world, bodies
+
+  def run(self, scene: Scene, steps: int, record: bool, repeats: int = 1):
+    def once():
+      world, bodies = self.build(scene)
+      player = None if scene.player is None else bodies[scene.player]
+      traj = np.zeros((steps, len(bodies), 2)) if record else None
+      position = lambda b: (lambda v: (v.x, v.y))(b.position)
+      t0 = time.perf_counter()
+      for t in range(steps):
+        if player is not None:
+          player.linear_velocity = (PUSH_SPEED, player.linear_velocity.y)
+        world.step(DT, 4)
+        if record:
+          traj[t] = [position(b) for b in bodies]
+      sec = time.perf_counter() - t0
+      final = np.array([position(b) for b in bodies])
       return (traj if record else final), sec
     return run_python(once, repeats)
 
@@ -361,15 +407,18 @@ def status_names(code: int) -> str:
 
 
 def load_peers(classes=None) -> tuple[list, list[str]]:
-  """Peer engines that import (of `classes`, default Box2D, pymunk and Jax2D), and one
-  message per engine that does not."""
+  """Peer engines that import (of `classes`, default Box2D 2.3, Box2D v3, pymunk and
+  Jax2D), and one message per engine that does not."""
   peers, skipped = [], []
-  for cls in classes or (Box2D, Pymunk, Jax2D):
+  for cls in classes or (Box2D, Box2DV3, Pymunk, Jax2D):
     try:
       peers.append(cls())
     except Exception as e:  # noqa: BLE001 - any import failure means "not installed".
-      skipped.append(f"{cls.name}: skipped, import failed ({type(e).__name__}: {e}); "
-                     "`pip install -e .[peers]` installs it")
+      hint = "`pip install -e .[peers]` installs it"
+      if cls is Box2DV3 and sys.version_info < (3, 12):
+        hint = (f"box2d-python ships wheels for Python 3.12 and later only (this is "
+                f"{platform.python_version()})")
+      skipped.append(f"{cls.name}: skipped, import failed ({type(e).__name__}: {e}); {hint}")
   return peers, skipped
 
 
@@ -396,8 +445,10 @@ def wait_quiet(limit_s: float, poll_s: float = 30.0) -> bool:
   return True
 
 
-def room_rows(sizes, batches, repeats, peers, notes) -> list[dict]:
-  """Throughput rows of the room scene: jaxchain (one world, then batches) and peers."""
+def room_rows(sizes, batches, repeats, peers, notes, steps=(ROOM_STEPS, BATCH_STEPS),
+              converge: bool = True) -> list[dict]:
+  """Throughput rows of the room scene: jaxchain (one world, then batches) and peers;
+  `steps` for one world and for a batch."""
   settings = []
   for n in sizes:
     settings.append(("jaxchain", n, 1, {}))
@@ -409,16 +460,16 @@ def room_rows(sizes, batches, repeats, peers, notes) -> list[dict]:
         notes.append("`Config.for_world` picks depth 8 at N=64 already: no separate depth=8 row.")
     settings += [("jaxchain", n, b, {}) for b in batches[n]]
     # Forward-only (no gradients, as the peers): hop loops stop once every world has converged.
-    settings += [("jaxchain", n, b, dict(converge=True)) for b in batches[n]]
+    settings += [("jaxchain", n, b, dict(converge=True)) for b in batches[n] if converge]
     settings += [(p.name, n, 1, {}) for p in peers]
   by_name = {p.name: p for p in peers}
   rows = []
   for name, n, b, over in tqdm(settings, desc="room", unit="setting"):
     scene = room(n)
-    steps, extra = (ROOM_STEPS if b == 1 else BATCH_STEPS), ""
+    steps_, extra = (steps[0] if b == 1 else steps[1]), ""
     if name == "jaxchain":
       engine = JaxChain(**over)
-      out, sec, comp = engine.run(scene, steps, record=False, repeats=repeats, batch=b)
+      out, sec, comp = engine.run(scene, steps_, record=False, repeats=repeats, batch=b)
       cfg = engine.cfg
       extra = (f"depth {cfg.depth}, {cfg.broadphase}, substeps {cfg.substeps}"
                f"{', explicit depth' if 'depth' in over else ''}"
@@ -431,26 +482,26 @@ def room_rows(sizes, batches, repeats, peers, notes) -> list[dict]:
                      "walks all pairs in sequential batches of 16, 10 iterations a step: far "
                      "past this run's time budget.")
         continue
-      out, sec, comp = engine.run(scene, steps, record=False, repeats=repeats)
+      out, sec, comp = engine.run(scene, steps_, record=False, repeats=repeats)
     pen = float(penetration(np.asarray(out)[None], scene)[0])
-    rows.append(dict(engine=name, n=n, batch=b, steps=steps, sec=sec, compile_s=comp,
-                     rate=n * b * steps / sec, pen=pen, extra=extra))
+    rows.append(dict(engine=name, n=n, batch=b, steps=steps_, sec=sec, compile_s=comp,
+                     rate=n * b * steps_ / sec, pen=pen, extra=extra))
   return rows
 
 
-def push_rows(peers, repeats) -> list[dict]:
-  """Accuracy and throughput rows of the push chain, one per engine."""
+def push_rows(peers, repeats, steps: int = PUSH_STEPS) -> list[dict]:
+  """Accuracy and throughput rows of the push chain, one per engine, over `steps` steps."""
   scene = push_chain()
   engines = [JaxChain()] + list(peers)
   rows = []
   for engine in tqdm(engines, desc="push chain", unit="engine"):
     # Jitted engines keep the trajectory in the scan at no real cost: one timed run.
     # Python engines are timed without reading positions back every step.
-    traj, sec, comp = engine.run(scene, PUSH_STEPS, record=True, repeats=repeats if engine.jitted else 1)
+    traj, sec, comp = engine.run(scene, steps, record=True, repeats=repeats if engine.jitted else 1)
     if not engine.jitted:
-      _, sec, _ = engine.run(scene, PUSH_STEPS, record=False, repeats=repeats)
+      _, sec, _ = engine.run(scene, steps, record=False, repeats=repeats)
     row = dict(engine=engine.name, sec=sec, compile_s=comp,
-               rate=scene.n_movable * PUSH_STEPS / sec, **push_metrics(np.asarray(traj), scene))
+               rate=scene.n_movable * steps / sec, **push_metrics(np.asarray(traj), scene))
     if isinstance(engine, JaxChain):
       cfg = engine.cfg
       row["extra"] = (f"depth {cfg.depth}, {cfg.broadphase}, substeps {cfg.substeps}; "
@@ -464,36 +515,41 @@ def main():
   parser.add_argument("--quick", action="store_true", help="N in (16, 64), smaller batches")
   parser.add_argument("--wait", type=float, default=900.0,
                       help="seconds to wait for other benchmarks to finish before timing")
-  args = parser.parse_args()
+  args = add_common_args(parser).parse_args()
   sizes = (16, 64) if args.quick else (16, 64, 256)
   # B=1024 as asked (B=64 at N=256 for memory and time); B=64 beside it for contrast.
   batches = {16: (64,), 64: (64,)} if args.quick else {16: (64, 1024), 64: (64, 1024), 256: (64,)}
-  repeats = 3
+  repeats, room_steps, push_steps = 3, (ROOM_STEPS, BATCH_STEPS), PUSH_STEPS
+  if args.smoke:  # One world of 8 boxes and the push chain, a few steps each; no wait.
+    sizes, batches, repeats, room_steps, push_steps, args.wait = (8,), {8: ()}, 1, (4, 4), 8, 0.0
   peers, notes = load_peers()
   for line in notes:
     print(line, file=sys.stderr)
   t_wait = time.perf_counter()
-  quiet = wait_quiet(args.wait)
+  quiet = wait_quiet(args.wait) if args.wait > 0 else not busy()
   t_start = time.perf_counter()
   notes.append(f"Waited {t_start - t_wait:.0f} s for other benchmarks and tests to finish.")
   load = os.getloadavg()[0]
   notes.append(f"Machine quiet at the start: {'yes' if quiet else 'NO'} (other benchmarks or "
                f"pytest {'none' if quiet else busy()}; 1-min load average {load:.2f} on "
                f"{os.cpu_count()} cores).")
-  room_res = room_rows(sizes, batches, repeats, peers, notes)
-  push_res = push_rows(peers, repeats)
+  room_res = room_rows(sizes, batches, repeats, peers, notes, room_steps,
+                       converge=not args.smoke)
+  push_res = push_rows(peers, repeats, push_steps)
   late = busy()
   if late:
     notes.append(f"Running at the end of the run: {late}; timings may be disturbed.")
-  command = "python benchmarks/peers.py" + (" --quick" if args.quick else "")
-  write(command, [JaxChain()] + peers, room_res, push_res, notes, time.perf_counter() - t_start)
+  command = "python benchmarks/peers.py" + (" --smoke" if args.smoke else
+                                            " --quick" if args.quick else "")
+  write(command, [JaxChain()] + peers, room_res, push_res, notes, time.perf_counter() - t_start,
+        out_dir(args), room_steps, push_steps)
 
 
 # --- Output ----------------------------------------------------------------------------
 
 
-def write(command: str, engines, room, push, notes, wall_s: float) -> None:
-  RESULTS.mkdir(exist_ok=True)
+def write(command: str, engines, room, push, notes, wall_s: float, out,
+          room_steps=(ROOM_STEPS, BATCH_STEPS), push_steps: int = PUSH_STEPS) -> None:
   dev = jax.devices()[0]
   lines = [
       "# jaxchain beside peer engines",
@@ -505,7 +561,8 @@ def write(command: str, engines, room, push, notes, wall_s: float) -> None:
       "Engines: " + "; ".join(e.version for e in engines) + ".",
       "",
       "Shared setup: unit boxes of mass 1, fixed rotation, g = -9.81, dt = 1/60, friction 0.5, "
-      "restitution 0, no sleeping. Box2D: 8 velocity / 3 position iterations. pymunk: "
+      "restitution 0, no sleeping. Box2D 2.3: 8 velocity / 3 position iterations. Box2D v3: "
+      "4 substeps (its soft-step solver's default). pymunk: "
       "default 10 iterations (and its default collision slop 0.1). Jax2D: default "
       "`StaticSimParams` (10 iterations, warm starting) and `SimParams`. jaxchain: "
       "`Config.for_world(world, friction=0.5)`. Peers run on one thread; jaxchain and Jax2D "
@@ -516,8 +573,8 @@ def write(command: str, engines, room, push, notes, wall_s: float) -> None:
   lines += [
       "## Room: throughput (body-steps/s = N * worlds * steps / s)",
       "",
-      f"N movable unit boxes in a closed room of 4 static walls, stepped from rest: {ROOM_STEPS} "
-      f"steps for single worlds (the boxes fall and settle), {BATCH_STEPS} steps for jaxchain "
+      f"N movable unit boxes in a closed room of 4 static walls, stepped from rest: {room_steps[0]} "
+      f"steps for single worlds (the boxes fall and settle), {room_steps[1]} steps for jaxchain "
       "batches (`jax.jit(jax.vmap(rollout))`; jaxchain's work per step is fixed-shape, so the "
       "rate does not depend on which steps are timed). Compile excluded (own column). Median "
       "of up to 3 runs (one run when it takes over 3 s). End penetration: the largest pairwise "
@@ -532,7 +589,7 @@ def write(command: str, engines, room, push, notes, wall_s: float) -> None:
                  f"{r['rate']:.3g} | {r['compile_s']:.1f} | {r['pen']:.2e} | {r['extra']} |")
   lines += [
       "",
-      f"## Push chain: accuracy ({PUSH_STEPS} steps)",
+      f"## Push chain: accuracy ({push_steps} steps)",
       "",
       f"Player driven at {PUSH_SPEED} units/s (+x) into {PUSH_BOXES} touching boxes on a floor, "
       "a static wall right behind the last box. Penetration: max over pairs (not both static) of "
@@ -575,7 +632,7 @@ def write(command: str, engines, room, push, notes, wall_s: float) -> None:
                    f"N=64 single thread {box64[0]['rate']:.3g}: ratio {ratio:.3f}x{target}")
   else:
     lines.append("- jaxchain batch vs Box2D at N=64: not measured (Box2D missing or N=64 not run)")
-  (RESULTS / "peers.md").write_text("\n".join(lines) + "\n")
+  (out / "peers.md").write_text("\n".join(lines) + "\n")
   print("\n".join(lines))
 
 

@@ -15,6 +15,7 @@ trace do not depend on how busy the machine is, unlike the stage rows. Writes
 
     python benchmarks/profile_step.py            # about 2 minutes on 2 cores
     python benchmarks/profile_step.py --batch 256
+    python benchmarks/profile_step.py --smoke --out /tmp/x   # room of 8, B=2: runs, writes
 """
 
 from __future__ import annotations
@@ -35,10 +36,9 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import broadphase, geometry, scenes, stepping
-from _bench import machine, median_time
+from _bench import add_common_args, machine, median_time, out_dir
 from peers import room
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 
 
 def stages(cfg: jc.Config) -> dict:
@@ -76,13 +76,14 @@ def stages(cfg: jc.Config) -> dict:
   }
 
 
-def scene_worlds(name: str, batch: int) -> tuple[jc.World, jc.Config]:
+def scene_worlds(name: str, batch: int, settle: int = 120) -> tuple[jc.World, jc.Config]:
   if name.startswith("room"):
     n = int(name[4:])
     s = room(n)
     world = jc.World.create(s.pos, s.half, s.mass, friction=0.5)
     cfg = jc.Config.for_world(world)
-    world, _ = jc.rollout(world, cfg, 120)  # Settle: the boxes fall and stack.
+    if settle:
+      world, _ = jc.rollout(world, cfg, settle)  # Settle: the boxes fall and stack.
   else:
     world = scenes.platformer().scene.world(friction=0.3)
     cfg = jc.Config.for_world(world)
@@ -90,8 +91,9 @@ def scene_worlds(name: str, batch: int) -> tuple[jc.World, jc.Config]:
   return jc.stack([world] * batch), cfg
 
 
-def op_shares(fn, worlds, top: int = 12, calls: int = 3) -> tuple[float, list]:
-  """The XLA:CPU operations of `fn(worlds)` by run time, from a profiler trace.
+def op_shares(compiled, worlds, top: int = 12, calls: int = 3) -> tuple[float, list]:
+  """The XLA:CPU operations of the compiled call `compiled(worlds)` by run time, from
+  a profiler trace.
 
   Returns:
     `(total_s, rows)`: op time per call summed over threads, and `(name, jax op, share)`
@@ -99,7 +101,6 @@ def op_shares(fn, worlds, top: int = 12, calls: int = 3) -> tuple[float, list]:
   """
   from jax._src import profiler as jax_profiler  # ProfileData reads the trace; no public path.
 
-  compiled = jax.jit(fn).lower(worlds).compile()
   jax.block_until_ready(compiled(worlds))
   with tempfile.TemporaryDirectory() as tmp:
     with jax.profiler.trace(tmp):
@@ -129,12 +130,15 @@ def main():
   parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--batch", type=int, default=1024, help="worlds per batch")
   parser.add_argument("--repeats", type=int, default=7)
-  args = parser.parse_args()
+  args = add_common_args(parser).parse_args()
+  scenes_ = ["room64", "platformer"]
+  if args.smoke:  # One small room, unsettled; every stage and the trace still run.
+    args.batch, args.repeats, scenes_ = 2, 1, ["room8"]
   started = time.perf_counter()
   header = machine()
   tables = {}
-  for name in tqdm(["room64", "platformer"], desc="scenes", unit="scene"):
-    worlds, cfg = scene_worlds(name, args.batch)
+  for name in tqdm(scenes_, desc="scenes", unit="scene"):
+    worlds, cfg = scene_worlds(name, args.batch, settle=0 if args.smoke else 120)
     compiled = {}
     for stage, fn in stages(cfg).items():
       t0 = time.perf_counter()
@@ -148,8 +152,9 @@ def main():
       for stage, (fn, _) in compiled.items():
         times[stage].append(median_time(lambda: jax.block_until_ready(fn(worlds)), 1)[1])
     rows = [(stage, statistics.median(times[stage]), compiled[stage][1]) for stage in compiled]
-    full = list(stages(cfg).values())[-1]
-    tables[name] = (cfg, int(worlds.pos.shape[1]), rows, op_shares(jax.vmap(full), worlds))
+    full = compiled[list(compiled)[-1]][0]  # The full step, as compiled for its row.
+    tables[name] = (cfg, int(worlds.pos.shape[1]), rows,
+                    op_shares(full, worlds, calls=1 if args.smoke else 3))
   write(tables, args, header, time.perf_counter() - started)
 
 
@@ -157,7 +162,7 @@ def write(tables, args, header, wall_s) -> None:
   lines = [
       "# Where a step's time goes",
       "",
-      f"`python benchmarks/profile_step.py --batch {args.batch}`, {header}; {wall_s:.0f} s. "
+      f"`python benchmarks/profile_step.py --batch {args.batch}{' --smoke' * args.smoke}`, {header}; {wall_s:.0f} s. "
       f"Each row: one jitted, vmapped call over {args.batch} identical settled worlds, "
       f"median of {args.repeats} rounds that time every stage once in turn, compile excluded. Each row adds stages to the one before, "
       "so the difference is what a stage costs.",
@@ -196,8 +201,7 @@ def write(tables, args, header, wall_s) -> None:
       "the status bits.",
       "Differences smaller than the run-to-run noise (a few percent) can come out negative.",
   ]
-  RESULTS.mkdir(exist_ok=True)
-  (RESULTS / "profile.md").write_text("\n".join(lines) + "\n")
+  (out_dir(args) / "profile.md").write_text("\n".join(lines) + "\n")
   print("\n".join(lines))
 
 

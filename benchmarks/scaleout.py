@@ -21,6 +21,7 @@ process's CPU time over the wall time of the timed calls (summed over processes)
 
     python benchmarks/scaleout.py             # about 12 minutes on 2 cores
     python benchmarks/scaleout.py --quick     # B = 256, fewer steps, one round
+    python benchmarks/scaleout.py --smoke --out /tmp/x   # B = 4, 2 devices and 2 processes
 
 Other programs on the machine only ever slow a run down, so every setting runs
 `--rounds` times, interleaved with the others, and the best round is reported (with the
@@ -45,7 +46,6 @@ import time
 
 HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
-RESULTS = HERE / "results"
 MODES = {"1dev": "1 device", "1dev1core": "1 device, 1 core", "2dev": "2 devices",
          "2dev1core": "2 devices, 1 core", "2proc": "2 processes"}
 STEPS = {"demo": 20, "room64": 5}  # Per call: about a second of work on one device.
@@ -199,18 +199,21 @@ def main(argv=None) -> int:
   parser.add_argument("--variant", action="append", default=[], metavar="LABEL=SRC",
                       help="also measure the jaxchain source tree SRC (prepended to PYTHONPATH), "
                            "interleaved with the others; repeatable. Default: the importable one")
-  parser.add_argument("--out", default=str(RESULTS / "scaleout.md"))
   parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
   parser.add_argument("--scene", default=None, help=argparse.SUPPRESS)
-  args = parser.parse_args(argv)
+  sys.path.insert(0, str(HERE))
+  from _bench import add_common_args, machine, out_dir  # Imports jax; starts no backend.
+
+  args = add_common_args(parser).parse_args(argv)
   if args.worker:
     print("RESULT " + json.dumps(worker(args.scene, args.batch, args.steps, args.repeats)), flush=True)
     return 0
-  sys.path.insert(0, str(HERE))
-  from _bench import machine
 
   batch = 256 if args.quick else args.batch
   rounds = 1 if args.quick else args.rounds
+  if args.smoke:  # The worker (2 devices, a mesh) and the 2-process launcher, tiny.
+    batch, rounds, args.repeats, args.steps = 4, 1, 1, 1
+    args.scenes, args.modes = "demo", "2dev,2proc"
   variants = [tuple(v.split("=", 1)) for v in args.variant] or [("jaxchain as importable", None)]
   settings = [(scene, MODES[code.strip()]) for scene in args.scenes.split(",")
               for code in args.modes.split(",")]
@@ -234,10 +237,11 @@ def main(argv=None) -> int:
     body += [f"## {label}", ""] + ([f"Workers on `{src}`.", ""] if src else []) + table(rows) + [""]
   intro = [
       "# Scale-out: one batch over devices and processes", "",
-      f"`python benchmarks/scaleout.py`, {machine()}.", "",
+      f"`python benchmarks/scaleout.py{' --smoke' * args.smoke}`, {machine()}.", "",
       __doc__.split("\n\n", 1)[1].split("\n\n    python")[0].strip(), ""]
-  pathlib.Path(args.out).write_text("\n".join(intro + body))
-  print(f"wrote {args.out}")
+  path = out_dir(args) / "scaleout.md"
+  path.write_text("\n".join(intro + body))
+  print(f"wrote {path}")
   return 0
 
 

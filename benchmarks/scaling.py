@@ -8,12 +8,12 @@ world (B=1) and for a batch of worlds. Writes `results/scaling.md` and
 
     python benchmarks/scaling.py            # full sweep, about 5 minutes on 2 cores
     python benchmarks/scaling.py --quick    # smaller sweep
+    python benchmarks/scaling.py --smoke --out /tmp/x   # grid, N=16, B=2: runs, writes
 """
 
 from __future__ import annotations
 
 import argparse
-import pathlib
 
 import jax
 import numpy as np
@@ -21,9 +21,8 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import scenes
-from _bench import compile_and_time, loglog, machine
+from _bench import add_common_args, compile_and_time, loglog, machine, out_dir
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 STEPS = 10
 
 
@@ -43,20 +42,21 @@ def time_setting(n: int, batch: int, kind: str, repeats: int) -> dict:
 def main():
   parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--quick", action="store_true", help="N up to 1024, fewer repeats")
-  args = parser.parse_args()
+  args = add_common_args(parser).parse_args()
   sizes = [64, 128, 256, 512, 1024] if args.quick else [64, 128, 256, 512, 1024, 2048, 4096]
   repeats = 3 if args.quick else 5
   # (kind, batch, largest n): dense is O(n^2) in time and memory, so it stops earlier.
   plan = [("grid", 1, 4096), ("dense", 1, 2048), ("grid", 16, 4096), ("dense", 16, 1024)]
+  if args.smoke:
+    sizes, repeats, plan = [16], 1, [("grid", 2, 16)]  # The grid: dense runs everywhere else.
   settings = [(n, b, k) for k, b, top in plan for n in sizes if n <= top]
   rows = []
   for n, b, k in tqdm(settings, desc="scaling", unit="setting"):
     rows.append(time_setting(n, b, k, repeats))
-  write(rows)
+  write(rows, out_dir(args))
 
 
-def write(rows: list[dict]) -> None:
-  RESULTS.mkdir(exist_ok=True)
+def write(rows: list[dict], out) -> None:
   lines = [
       "# Grid against dense: time per step over bodies per world",
       "",
@@ -82,19 +82,19 @@ def write(rows: list[dict]) -> None:
     faster = [n for n, g, d in both if g < d]
     lines.append(f"- B={b}: grid faster from N={min(faster)}" if faster
                  else f"- B={b}: dense faster at every N measured")
-  (RESULTS / "scaling.md").write_text("\n".join(lines) + "\n")
-  plot(rows)
+  (out / "scaling.md").write_text("\n".join(lines) + "\n")
+  plot(rows, out)
   print("\n".join(lines))
 
 
-def plot(rows: list[dict]) -> None:
+def plot(rows: list[dict], out) -> None:
   series = {}
   for kind, style in (("grid", "-o"), ("dense", "--s")):
     for b in sorted({r["batch"] for r in rows}):
       sel = [r for r in rows if r["kind"] == kind and r["batch"] == b]
       if sel:
         series[f"{kind}, B={b}"] = ([r["n"] for r in sel], [r["body_step_s"] * 1e9 for r in sel], style)
-  loglog(RESULTS / "scaling.png", series, xlabel="bodies per world N", ylabel="ns per body-step",
+  loglog(out / "scaling.png", series, xlabel="bodies per world N", ylabel="ns per body-step",
          title="jaxchain: time per body-step (flat = O(N))", xbase=2)
 
 

@@ -10,12 +10,12 @@ reported as a ratio to the lean config measured in the same round (the machines 
 noisy). Writes `results/specialisation.md`.
 
     python benchmarks/specialisation.py [--batch 256] [--rounds 5]
+    python benchmarks/specialisation.py --smoke --out /tmp/x   # lean only, B=2: runs, writes
 """
 
 from __future__ import annotations
 
 import argparse
-import pathlib
 import statistics
 import time
 
@@ -26,9 +26,11 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import broadphase, scenes
+from _bench import add_common_args, out_dir
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 STEPS = 20
+# `--smoke` compiles only these (every variant's config is still built and checked).
+SMOKE_VARIANTS = ("lean (for_world)",)
 
 
 def build(batch: int):
@@ -78,10 +80,15 @@ def main():
   parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--batch", type=int, default=256)
   parser.add_argument("--rounds", type=int, default=5)
-  args = parser.parse_args()
+  args = add_common_args(parser).parse_args()
+  if args.smoke:
+    args.batch, args.rounds = 2, 1
   worlds, controls = build(args.batch)
   compiled = {}
-  for name, (cfg, w) in tqdm(variants(worlds).items(), desc="compile", unit="variant"):
+  todo = variants(worlds)
+  if args.smoke:
+    todo = {name: todo[name] for name in SMOKE_VARIANTS}
+  for name, (cfg, w) in tqdm(todo.items(), desc="compile", unit="variant"):
     fn = jax.jit(jax.vmap(lambda w, u, cfg=cfg: jc.rollout(w, cfg, STEPS, u)[0]))
     compiled[name] = (fn.lower(w, controls).compile(), w)
     jax.block_until_ready(compiled[name][0](w, controls))
@@ -91,15 +98,15 @@ def main():
       t0 = time.perf_counter()
       jax.block_until_ready(fn(w, controls))
       times[name].append((time.perf_counter() - t0) / STEPS)
-  write(times, args.batch)
+  write(times, args.batch, out_dir(args), " --smoke" if args.smoke else "")
 
 
-def write(times: dict[str, list[float]], batch: int) -> None:
+def write(times: dict[str, list[float]], batch: int, out, flags: str = "") -> None:
   base = times["lean (for_world)"]
   lines = [
       "# What each feature costs on the demo scene",
       "",
-      f"`python benchmarks/specialisation.py --batch {batch}` on {jax.devices()[0].device_kind}, "
+      f"`python benchmarks/specialisation.py --batch {batch}{flags}` on {jax.devices()[0].device_kind}, "
       f"jax {jax.__version__}: `scenes.platformer` (14 bodies), {batch} worlds, jitted vmapped "
       f"{STEPS}-step rollouts, compile excluded. Ratio = variant / lean config, per round "
       "(interleaved), median over rounds.",
@@ -117,8 +124,7 @@ def write(times: dict[str, list[float]], batch: int) -> None:
       "\"no walls\" rows use the same bodies with the walls made movable (mass 1000), so",
       "that switching off immovable tracking is allowed; they compare with each other.",
   ]
-  RESULTS.mkdir(exist_ok=True)
-  (RESULTS / "specialisation.md").write_text("\n".join(lines) + "\n")
+  (out / "specialisation.md").write_text("\n".join(lines) + "\n")
   print("\n".join(lines))
 
 

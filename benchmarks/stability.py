@@ -13,6 +13,7 @@ with the player pushed in random directions for 10^4 steps. Writes
 
     python benchmarks/stability.py            # full run, about 3 minutes on 2 cores
     python benchmarks/stability.py --quick    # shorter soak (B=8, 2000 steps)
+    python benchmarks/stability.py --smoke --out /tmp/x   # every case once, tiny: runs, writes
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import pathlib
 import sys
 import time
 
@@ -31,8 +31,8 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import metrics, scenes, status
+from _bench import add_common_args, out_dir
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 INF = np.inf
 RATIOS = (1e-6, 1e-3, 1e3, 1e6)
 DTS = (1e-4, 1e-3, 1 / 60, 1 / 30)
@@ -166,28 +166,28 @@ def depth_configs(world: jc.World, height: int, **overrides) -> list[tuple[jc.Co
   return out
 
 
-def mass_ratio_cases(steps: int, bar) -> list[tuple[str, dict]]:
+def mass_ratio_cases(steps: int, bar, ratios=RATIOS, height: int = 20) -> list[tuple[str, dict]]:
   """Stacks of 20 with alternating masses 1 and `ratio`, friction 0.5, at the depth
   `Config.for_world` picks (and at depth 20 if that is less)."""
   rows = []
-  for ratio in RATIOS:
-    masses = np.where(np.arange(20) % 2 == 0, 1.0, ratio)
-    world = scenes.stack(20, overlaps=0.0, masses=masses).world(friction=0.5)
-    for cfg, label in depth_configs(world, 20):
+  for ratio in ratios:
+    masses = np.where(np.arange(height) % 2 == 0, 1.0, ratio)
+    world = scenes.stack(height, overlaps=0.0, masses=masses).world(friction=0.5)
+    for cfg, label in depth_configs(world, height):
       r = run_case(world, cfg, steps)
-      r.update(label=label, height=20)
+      r.update(label=label, height=height)
       rows.append((f"{ratio:g} | {cfg.depth} ({label}) | {r['drift']:.3g}", r))
     bar.update()
   return rows
 
 
-def tall_stack_case(steps: int, bar) -> list[tuple[str, dict]]:
+def tall_stack_case(steps: int, bar, height: int = 100) -> list[tuple[str, dict]]:
   """A stack of 100 unit boxes on a floor, depth 100, friction 0.5."""
-  world = scenes.stack(100, overlaps=0.0).world(friction=0.5)
-  r = run_case(world, jc.Config.for_world(world, depth=100), steps)
-  r.update(label="override", height=100)
+  world = scenes.stack(height, overlaps=0.0).world(friction=0.5)
+  r = run_case(world, jc.Config.for_world(world, depth=height), steps)
+  r.update(label="override", height=height)
   bar.update()
-  return [(f"100 | {r['depth']} | {r['drift']:.3g}", r)]
+  return [(f"{height} | {r['depth']} | {r['drift']:.3g}", r)]
 
 
 def chain_world(length: int = 256) -> tuple[jc.World, float]:
@@ -201,20 +201,21 @@ def chain_world(length: int = 256) -> tuple[jc.World, float]:
   return jc.World.create(pos, half, mass, friction=0.3), face
 
 
-def chain_cases(steps: int, bar) -> list[tuple[str, dict]]:
+def chain_cases(steps: int, bar, length: int = 256) -> list[tuple[str, dict]]:
   """The player pushed at +20 along +x into 256 boxes against a wall, gravity, a floor,
   friction 0.3; at the depth `Config.for_world` picks (and at 257, the player and
   every box, if that is less)."""
-  world, face = chain_world(256)
+  world, face = chain_world(length)
   controls = np.zeros((world.num_bodies, 2), np.float32)
   controls[0, 0] = 20.0
   rows = []
-  for cfg, label in depth_configs(world, 257):
+  boxes = slice(1, length + 1)
+  for cfg, label in depth_configs(world, length + 1):
     r = run_case(world, cfg, steps, controls, driven=True)
-    right = np.asarray(r["traj"].pos)[:, 1:257, 0] + 0.5
+    right = np.asarray(r["traj"].pos)[:, boxes, 0] + 0.5
     intrusion = float(np.max(right - face))
-    moved = float(np.max(np.abs(np.asarray(r["final"].pos)[1:257] - np.asarray(world.pos)[1:257])))
-    r.update(intrusion=intrusion, label=label, height=257)
+    moved = float(np.max(np.abs(np.asarray(r["final"].pos)[boxes] - np.asarray(world.pos)[boxes])))
+    r.update(intrusion=intrusion, label=label, height=length + 1)
     rows.append((f"{cfg.depth} ({label}) | {cfg.broadphase} | {intrusion:.3g} | {moved:.3g}", r))
   bar.update()
   return rows
@@ -233,12 +234,12 @@ def far_case(steps: int, bar) -> tuple[list[tuple[str, dict]], float]:
   return [(lead, r)], ulp
 
 
-def dt_cases(steps: int, bar) -> list[tuple[str, dict]]:
+def dt_cases(steps: int, bar, dts=DTS) -> list[tuple[str, dict]]:
   """A resting stack of 10, friction 0.5, for each dt; at the `for_world` depth (and
   at depth 10 if that is less)."""
   world = scenes.stack(10, overlaps=0.0).world(friction=0.5)
   rows = []
-  for dt in DTS:
+  for dt in dts:
     for cfg, label in depth_configs(world, 10, dt=dt):
       r = run_case(world, cfg, steps)
       r.update(label=label, height=10)
@@ -255,13 +256,13 @@ def bullet(speed: float) -> jc.World:
                          vel=[[speed, 0.0], [0.0, 0.0]], gravity=(0.0, 0.0))
 
 
-def tunnel_cases(steps: int, bar) -> list[tuple[str, dict]]:
+def tunnel_cases(steps: int, bar, speeds=SPEEDS, forcing=(False, True)) -> list[tuple[str, dict]]:
   """The bullet at every speed, substeps from `Config.for_world` and forced to 1; no
   gravity."""
   rows = []
-  for speed in SPEEDS:
+  for speed in speeds:
     world = bullet(speed)
-    for forced in (False, True):
+    for forced in forcing:
       extra = dict(substeps=1) if forced else {}
       cfg = jc.Config.for_world(world, **extra)
       r = run_case(world, cfg, steps)
@@ -413,26 +414,33 @@ def body_names(room: scenes.Platformer, n: int) -> list[str]:
 def main():
   parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--quick", action="store_true", help="soak of 8 worlds for 2000 steps")
-  args = parser.parse_args()
+  args = add_common_args(parser).parse_args()
   soak_batch, soak_steps = (8, 2000) if args.quick else (64, 10_000)
+  # `--smoke`: every case once, small and short (the tables' titles keep the full sizes).
+  steps, ratios, dts, speeds, tall, chain = 2000, RATIOS, DTS, SPEEDS, 100, 256
+  if args.smoke:
+    soak_batch, soak_steps = 2, 10
+    # Stacks of 10 throughout: one shape, so the penetration measure compiles once.
+    steps, ratios, dts, speeds, tall, chain = 10, RATIOS[-1:], DTS[2:3], SPEEDS[-1:], 10, 4
   t_start = time.perf_counter()
   groups = {}
-  n_runs = len(RATIOS) + 1 + 1 + 1 + len(DTS) + len(SPEEDS) * 2
+  n_runs = len(ratios) + 1 + 1 + 1 + len(dts) + len(speeds) * (1 if args.smoke else 2)
   with tqdm(total=n_runs, desc="cases", unit="run", file=sys.stderr) as bar:
-    groups["ratio"] = mass_ratio_cases(2000, bar)
-    groups["tall"] = tall_stack_case(2000, bar)
-    groups["chain"] = chain_cases(1000, bar)
-    groups["far"], ulp = far_case(2000, bar)
-    groups["dt"] = dt_cases(2000, bar)
-    groups["tunnel"] = tunnel_cases(60, bar)
+    groups["ratio"] = mass_ratio_cases(steps, bar, ratios, height=10 if args.smoke else 20)
+    groups["tall"] = tall_stack_case(steps, bar, tall)
+    groups["chain"] = chain_cases(steps // 2, bar, chain)
+    groups["far"], ulp = far_case(steps, bar)
+    groups["dt"] = dt_cases(steps, bar, dts)
+    groups["tunnel"] = tunnel_cases(min(steps, 60), bar, speeds,
+                                    forcing=(True,) if args.smoke else (False, True))
   s = soak(soak_batch, soak_steps)
   total_s = time.perf_counter() - t_start
-  command = "python benchmarks/stability.py" + (" --quick" if args.quick else "")
-  write(groups, ulp, s, command, total_s)
+  command = "python benchmarks/stability.py" + (" --smoke" if args.smoke else
+                                                " --quick" if args.quick else "")
+  write(groups, ulp, s, command, total_s, out_dir(args))
 
 
-def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> None:
-  RESULTS.mkdir(exist_ok=True)
+def write(groups: dict, ulp: float, s: dict, command: str, total_s: float, out) -> None:
   device = jax.devices()[0].device_kind
   date = datetime.date.today().isoformat()
   lines = [
@@ -546,8 +554,8 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float) -> No
   lines += ["", "## Status messages seen (`jc.check`)", ""]
   lines += [f"- {m}" for m in sorted(messages)] or ["- none"]
   lines += ["", "## Bounds", "", bounds_paragraph(groups, ulp, s)]
-  (RESULTS / "stability.md").write_text("\n".join(lines) + "\n")
-  plot(s)
+  (out / "stability.md").write_text("\n".join(lines) + "\n")
+  plot(s, out)
   print("\n".join(lines))
 
 
@@ -611,7 +619,7 @@ def bounds_paragraph(groups: dict, ulp: float, s: dict) -> str:
   return " ".join(p for p in parts if p)
 
 
-def plot(s: dict) -> None:
+def plot(s: dict, out) -> None:
   """Soak: the share of world-steps whose penetration (left) and penetration over the
   one-step travel bound (right) exceed a value."""
   import matplotlib
@@ -621,17 +629,20 @@ def plot(s: dict) -> None:
   for ax, values, label in ((axes[0], s["pen_all"], "penetration after a step"),
                             (axes[1], s["ratio_all"], "penetration / one-step travel bound")):
     v = np.sort(values[np.isfinite(values) & (values > 0)])
+    ax.set_xlabel(label)
+    if not v.size:  # Nothing to draw on log axes: no world-step had any penetration.
+      ax.text(0.5, 0.5, "no penetration in any world-step", ha="center", transform=ax.transAxes)
+      continue
     share = (len(v) - np.arange(len(v))) / len(values)  # Share of all world-steps >= v[k].
     ax.step(v, share, where="post")
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel(label)
     ax.grid(True, which="both", alpha=0.3)
   axes[1].axvline(1.0, color="k", lw=0.8, ls="--")
   axes[0].set_ylabel("share of world-steps above")
   fig.suptitle(f"jaxchain soak: platformer, {s['batch']} worlds x {s['steps']} steps, random pushes")
   fig.tight_layout()
-  fig.savefig(RESULTS / "stability.png", dpi=120)
+  fig.savefig(out / "stability.png", dpi=120)
 
 
 if __name__ == "__main__":

@@ -9,12 +9,12 @@ and listed. Writes `results/throughput.md` and `results/throughput.png`.
 
     python benchmarks/throughput.py            # N 16..1024 x B 1..4096, about 5 minutes
     python benchmarks/throughput.py --quick    # B up to 1024
+    python benchmarks/throughput.py --smoke --out /tmp/x   # N=16, B=2: runs, writes
 """
 
 from __future__ import annotations
 
 import argparse
-import pathlib
 import time
 
 import jax
@@ -24,9 +24,8 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import scenes
-from _bench import compile_and_time, loglog, machine
+from _bench import add_common_args, compile_and_time, loglog, machine, out_dir
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 PUSH = 20.0  # The player's acceleration along +x, as `jaxchain demo --push`.
 # Largest candidate table (worlds x bodies x row slots) a setting may hold: about
 # 0.5 GB per float32 array, and a step keeps a handful of them alive.
@@ -35,7 +34,7 @@ MAX_PAIRS = 2**27
 BODY_STEPS_PER_CALL = 4e5
 
 
-def setting(n: int, batch: int, repeats: int) -> dict:
+def setting(n: int, batch: int, repeats: int, max_steps: int = 100) -> dict:
   level = scenes.platformer_level(n)
   world = level.scene.world(friction=0.3)
   worlds = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), world)
@@ -45,7 +44,7 @@ def setting(n: int, batch: int, repeats: int) -> dict:
                   links=cfg.links, row=row)
   if batch * n * row > MAX_PAIRS:
     return dict(row_info, skipped=f"{batch} x {n} x {row} candidate slots > 2^27")
-  steps = int(np.clip(BODY_STEPS_PER_CALL // (n * batch), 2, 100))
+  steps = int(np.clip(BODY_STEPS_PER_CALL // (n * batch), 2, max_steps))
   controls = jnp.zeros((n, 2), world.pos.dtype).at[level.player, 0].set(PUSH)
 
   def run(w):
@@ -64,9 +63,11 @@ def main():
   parser.add_argument("--quick", action="store_true", help="B up to 1024, fewer repeats")
   parser.add_argument("--sizes", type=int, nargs="+", default=[16, 64, 256, 1024])
   parser.add_argument("--batches", type=int, nargs="+", default=None)
-  args = parser.parse_args()
+  args = add_common_args(parser).parse_args()
   batches = args.batches or ([1, 64, 1024] if args.quick else [1, 64, 1024, 4096])
   repeats = 3 if args.quick else 5
+  if args.smoke:
+    args.sizes, batches, repeats = [16], [2], 1
   header = machine()
   started = time.perf_counter()
   rows = []
@@ -74,12 +75,12 @@ def main():
   with tqdm(plan, desc="throughput", unit="setting") as bar:
     for n, b in bar:
       bar.set_postfix(N=n, B=b)
-      rows.append(setting(n, b, repeats))
+      rows.append(setting(n, b, repeats, max_steps=2 if args.smoke else 100))
   write(rows, args, header, time.perf_counter() - started)
 
 
 def write(rows, args, header, wall_s) -> None:
-  flags = " --quick" if args.quick else ""
+  flags = " --smoke" if args.smoke else " --quick" if args.quick else ""
   lines = [
       "# Throughput over bodies per world and batch size",
       "",
@@ -111,18 +112,18 @@ def write(rows, args, header, wall_s) -> None:
       one = [r for r in done if r["n"] == n]
       lines.append(f"- N={n}: batching gains {max(r['body_steps'] for r in one) / one[0]['body_steps']:.1f}x "
                    f"over B={one[0]['batch']}")
-  RESULTS.mkdir(exist_ok=True)
-  (RESULTS / "throughput.md").write_text("\n".join(lines) + "\n")
-  plot(done)
+  out = out_dir(args)
+  (out / "throughput.md").write_text("\n".join(lines) + "\n")
+  plot(done, out)
   print("\n".join(lines))
 
 
-def plot(rows) -> None:
+def plot(rows, out) -> None:
   series = {}
   for n in sorted({r["n"] for r in rows}):
     sel = [r for r in rows if r["n"] == n]
     series[f"N={n}"] = ([r["batch"] for r in sel], [r["body_steps"] for r in sel], "-o")
-  loglog(RESULTS / "throughput.png", series, xlabel="worlds per batch B", ylabel="body-steps/s",
+  loglog(out / "throughput.png", series, xlabel="worlds per batch B", ylabel="body-steps/s",
          title="jaxchain throughput, platformer scene (2-core CPU)", xbase=2)
 
 
