@@ -26,7 +26,8 @@ rate of the episodes that ended, losses), then the wall time (compile included)
 and a final evaluation: the success rate and mean return of the trained policy
 (its mode: argmax or the Gaussian mean) over 256 evaluation episodes, each from
 a fresh reset. `--out PREFIX` writes the learning curve as `PREFIX.csv` and
-`PREFIX.png`.
+`PREFIX.png`; `--plot A.csv B.csv --out PREFIX` only draws saved curves together.
+Results on 2 cores: `benchmarks/results/ppo.md`.
 """
 
 from __future__ import annotations
@@ -578,10 +579,18 @@ def plot_curves(csv_paths, png_path, title: str | None = None, labels=None) -> N
   for i, path in enumerate(csv_paths):
     data = read_curve(path)
     label = labels[i] if labels else pathlib.Path(path).stem
-    ax_r.plot(data["timesteps"], data["return"], label=label)
-    ax_s.plot(data["timesteps"], data["success"], label=label)
-  ax_r.set(xlabel="env steps", ylabel="mean episode return", title="return (episodes ended)")
-  ax_s.set(xlabel="env steps", ylabel="success rate", title="success (episodes ended)",
+    for ax, key in ((ax_r, "return"), (ax_s, "success")):
+      # Raw per update (faint) and a running mean over 10 updates (weighted by episodes).
+      x, y, w = data["timesteps"], data[key], data["episodes"]
+      k = np.ones(10)
+      smooth = np.convolve(y * w, k, "full")[:len(y)] / np.maximum(
+          np.convolve(w, k, "full")[:len(y)], 1)
+      line, = ax.plot(x, smooth, label=label)
+      ax.plot(x, y, color=line.get_color(), alpha=0.2, linewidth=0.8)
+  ax_r.set(xlabel="env steps", ylabel="mean episode return",
+           title="return of the episodes ended (10-update mean)")
+  ax_s.set(xlabel="env steps", ylabel="success rate",
+           title="success of the episodes ended (10-update mean)",
            ylim=(-0.02, 1.02))
   for ax in (ax_r, ax_s):
     ax.grid(alpha=0.3)
@@ -639,7 +648,16 @@ def main(argv=None) -> int:
   parser.add_argument("--quiet", action="store_true", help="no per-update lines")
   parser.add_argument("--save", default=None, metavar="PATH.npz",
                       help="write the trained policy's arrays (keyed by pytree path)")
+  parser.add_argument("--plot", nargs="+", default=None, metavar="CSV",
+                      help="only plot these learning-curve CSVs into --out PREFIX.png (no training)")
   args = parser.parse_args(argv)
+  if args.plot:
+    if not args.out:
+      parser.error("--plot needs --out PREFIX")
+    png = pathlib.Path(args.out).with_suffix(".png")
+    plot_curves(args.plot, png, title="PPO (examples/ppo.py) on 2 CPU cores")
+    print(f"wrote {png}")
+    return 0
 
   env, env_params = load_env(args.env, args.level, **dict(args.param))
   config = PPOConfig(num_envs=args.num_envs, num_steps=args.num_steps,
