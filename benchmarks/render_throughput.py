@@ -59,10 +59,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxchain as jc
-from _bench import machine
+from _bench import add_common_args, machine, out_dir
 from jaxchain import drawing
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 SIZES = ((64, 64), (96, 160))
 BATCHES = (1, 64, 1024)
 SLOTS = 20
@@ -163,11 +162,7 @@ def setting(scene: str, size, batch: int, repeats: int) -> dict:
 def main():
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--smoke", action="store_true",
-                      help="tiny sizes, a few seconds: checks that the script runs and writes its "
-                           "table (the figures mean nothing)")
-  parser.add_argument("--out", type=pathlib.Path, default=RESULTS, metavar="DIR",
-                      help="directory to write the table to (default benchmarks/results)")
+  add_common_args(parser)
   parser.add_argument("--repeats", type=int, default=5, help="timed calls per setting")
   parser.add_argument("--wide", action="store_true",
                       help="internal: the second table's run (started by the script itself with "
@@ -265,8 +260,7 @@ def write(rows, wide, args, header, wall_s) -> None:
             "threads, which moves much less with the machine's load than the wall clock does. "
             "On a quiet machine the wall-clock rate is about this figure times the number of "
             "cores a call keeps busy (1 to 2 here)."]
-  args.out.mkdir(parents=True, exist_ok=True)
-  (args.out / "render_throughput.md").write_text("\n".join(lines) + "\n")
+  (out_dir(args) / "render_throughput.md").write_text("\n".join(lines) + "\n")
   print("\n".join(lines))
 
 
