@@ -8,6 +8,14 @@ third (measured on test_golden, test_stepping and test_links: 411 s -> 293 s). U
 the benchmarks run at the default level; `tests/test_golden.py` replays a golden scene
 at the default level too (`test_same_answers_at_the_default_optimisation_level`), so a
 miscompile there (jax-ml/jax#39103 was one) still fails the suite.
+
+`pytest`, typed as written, runs on pytest-xdist workers (`pytest_cmdline_main` below):
+one per core, at most `MAX_WORKERS`, with `--dist loadfile`, so a module's tests share
+one worker's compiled functions and module fixtures. `-n N` / `--dist MODE` on the
+command line win; `-n 0` or `-p no:xdist` runs in this one process. (The defaults are
+set here rather than in pyproject's `addopts`, because `-n` in `addopts` turns
+`pytest -p no:xdist` into a usage error.) The workers import this file too, so they
+get the same XLA flag, and tests' subprocesses inherit it from the environment.
 """
 
 import os
@@ -26,6 +34,39 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 settings.register_profile("jaxchain", max_examples=25, deadline=None, derandomize=True,
                           print_blob=True)
 settings.load_profile("jaxchain")
+
+
+# Workers `pytest` starts by itself; each holds its own compiled functions (1-3 GB).
+MAX_WORKERS = 4
+
+
+def _cores() -> int:
+  try:
+    return len(os.sched_getaffinity(0))
+  except AttributeError:  # Not Linux.
+    return os.cpu_count() or 1
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_cmdline_main(config):
+  """Without `-n` on the command line, `-n auto --dist loadfile` (xdist installed, and
+  not inside a worker). Runs before xdist's own `pytest_cmdline_main` reads them."""
+  if getattr(config.option, "numprocesses", "absent") == "absent":  # -p no:xdist.
+    return
+  if os.environ.get("PYTEST_XDIST_WORKER"):
+    return
+  if config.option.numprocesses is None:
+    config.option.numprocesses = "auto"
+  if config.option.dist == "no" and config.option.numprocesses not in (0, "0"):
+    config.option.dist = "loadfile"
+
+
+@pytest.hookimpl(optionalhook=True)  # An xdist hook: unknown under -p no:xdist.
+def pytest_xdist_auto_num_workers(config):
+  """`-n auto`: one worker per usable core, at most `MAX_WORKERS`; one core runs here."""
+  del config
+  cores = min(_cores(), MAX_WORKERS)
+  return cores if cores > 1 else 0
 
 
 @pytest.fixture(autouse=True)
