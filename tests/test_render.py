@@ -304,6 +304,17 @@ def test_a_batch_in_chunks_equals_each_world_alone():
     np.testing.assert_array_equal(images[b], jc.render(_take(crowd, b), size, player=b))
 
 
+def test_a_clip_of_a_large_world_equals_its_frames():
+  crowd = _crowd(k=2)
+  pos = np.stack([np.asarray(crowd.pos) + 0.3 * t for t in range(3)], axis=1)  # [2, 3, n, 2]
+  traj = jc.Trajectory(pos=pos, vel=np.zeros_like(pos))
+  size, bounds = (24, 24), (0.0, 0.0, 12.0, 12.0)
+  frames = np.asarray(jc.render_trajectory(crowd, traj, size, bounds, batch_size=2))
+  for b, t in ((0, 0), (1, 2)):
+    one = dataclasses.replace(_take(crowd, b), pos=pos[b, t])
+    np.testing.assert_array_equal(frames[b, t], jc.render(one, size, bounds))
+
+
 # What is not finite (issue 18): never an all-black frame, never a silent wrong answer.
 
 
