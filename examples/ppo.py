@@ -91,7 +91,7 @@ class PPOConfig:
       `examples/es_push_box.py` does).
   """
 
-  num_envs: int = 64
+  num_envs: int = 128
   num_steps: int = 64
   total_timesteps: int = 1_000_000
   update_epochs: int = 4
@@ -105,7 +105,7 @@ class PPOConfig:
   lr: float = 1e-3
   anneal_lr: bool = True
   hidden: int = 64
-  init_log_std: float = -0.5
+  init_log_std: float = 0.0
   normalize_obs: bool = True
   squash: bool = False
   obs_features: int | None = None
