@@ -8,7 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import jaxchain as jc
-from jaxchain import broadphase, geometry, scenes, status
+from jaxchain import broadphase, geometry, scenes, sizing, status
 from tests.helpers import TOL, mixed_room as room
 
 N = 32  # Every scene is padded to this: one compile per config.
@@ -171,3 +171,202 @@ def test_for_world_picks_the_broadphase_by_size_and_crowding():
   pile = jc.World.create(rng.uniform(0, 2, (600, 2)), [0.1, 0.1], 1.0)  # 600 boxes, 2 x 2 area.
   assert jc.Config.for_world(pile).broadphase == "dense"  # Too crowded for cells to help.
   assert jc.Config.for_world(pile, broadphase="grid").broadphase == "grid"
+
+
+# --- Neighbour tables (Config.neighbors): exact, or a status bit ------------------------
+
+NB = 16  # Neighbour-table scenes are padded to this.
+WIDTH = 6  # Narrower than the row: the table really compacts.
+NEAR = jc.Config(gravity=False, depth=6, iterations=2, broadphase="dense", neighbors=WIDTH,
+                 margin=0.3)
+FAR = NEAR.replace(neighbors=None, margin=0.0)
+
+
+@st.composite
+def small_rooms(draw, max_boxes=9):
+  """A 6 x 6 walled room with up to `max_boxes` movable boxes, overlapping or not."""
+  k = draw(st.integers(1, max_boxes))
+  coord = st.floats(0.375, 5.625, width=32)
+  size = st.floats(0.125, 0.625, width=32)
+  pos = [[3.0, -0.5], [3.0, 6.5], [-0.5, 3.0], [6.5, 3.0]]
+  half = [[4.0, 0.5], [4.0, 0.5], [0.5, 3.0], [0.5, 3.0]]
+  pos += [[draw(coord), draw(coord)] for _ in range(k)]
+  half += [[draw(size), draw(size)] for _ in range(k)]
+  mass = [np.inf] * 4 + [draw(st.sampled_from([0.5, 1.0, 2.0])) for _ in range(k)]
+  vel = [[0.0, 0.0]] * 4 + [[draw(st.floats(-3, 3, width=32)), draw(st.floats(-3, 3, width=32))]
+                            for _ in range(k)]
+  return jc.World.create(pos, half, mass, vel=vel, gravity=(0.0, -9.81), friction=0.3).pad(NB)
+
+
+def partners_within(world, reach):
+  """Host count of each movable body's partners within `reach` on both axes."""
+  p, h = np.asarray(world.pos, np.float64), np.asarray(world.half, np.float64)
+  active, movable = np.asarray(world.active), np.asarray(world.movable)
+  gap = np.abs(p[:, None] - p[None]) - (h[:, None] + h[None])
+  near = np.all(gap <= reach, -1) & active[None] & movable[:, None] & ~np.eye(len(p), dtype=bool)
+  return near.sum(1)
+
+
+build_fn = jax.jit(broadphase.build, static_argnames="config")
+
+
+@given(small_rooms())
+def test_neighbor_table_resolves_exactly_as_dense_pairs(world):
+  near, far = jc.resolve(world, NEAR), jc.resolve(world, FAR)
+  overflow = int(near.status) & status.NEIGHBOR_OVERFLOW
+  # No silent miss: the bit is set exactly when some row has more partners than fit.
+  reach = broadphase.neighbor_reach(NEAR.skin, NEAR.margin)
+  assert bool(overflow) == bool(np.max(partners_within(world, reach)) > WIDTH)
+  if int(near.status) & (status.NEIGHBOR_OVERFLOW | status.NEIGHBOR_MARGIN):
+    return
+  # Same pairs in the same order (body order): the same answer, bit for bit.
+  np.testing.assert_array_equal(near.pos, far.pos)
+  np.testing.assert_array_equal(near.touching, far.touching)
+  np.testing.assert_array_equal(near.crushed, far.crushed)
+  assert int(near.status) == int(far.status)
+
+
+@given(small_rooms())
+def test_neighbor_table_steps_exactly_as_dense_pairs(world):
+  cfg = NEAR.replace(gravity=True, iterations=1, substeps=2)
+  near, far = jc.step(world, cfg), jc.step(world, cfg.replace(neighbors=None, margin=0.0))
+  if int(near.status) & (status.NEIGHBOR_OVERFLOW | status.NEIGHBOR_MARGIN):
+    reach = broadphase.neighbor_reach(cfg.skin, cfg.margin)
+    assert (np.max(partners_within(world, reach)) > WIDTH - 2
+            or int(near.status) & status.NEIGHBOR_MARGIN)
+    return
+  np.testing.assert_array_equal(near.pos, far.pos)
+  np.testing.assert_array_equal(near.vel, far.vel)
+  assert int(near.status) == int(far.status)
+
+
+@given(small_rooms())
+def test_neighbor_rows_are_the_partners_within_the_margin_in_body_order(world):
+  table = build_fn(world.pos, world, NEAR)
+  reach = broadphase.neighbor_reach(NEAR.skin, NEAR.margin)
+  p, h = np.asarray(world.pos, np.float64), np.asarray(world.half, np.float64)
+  idx, mask = np.asarray(table.cand.idx), np.asarray(table.cand.mask)
+  for i in range(NB):
+    want = [j for j in range(NB) if j != i and bool(world.active[j]) and bool(world.movable[i])
+            and np.all(np.abs(p[j] - p[i]) - (h[i] + h[j]) <= reach)]
+    got = idx[i][mask[i]].tolist()
+    if len(want) <= WIDTH:
+      assert got == want
+    else:
+      assert got == want[:WIDTH] and int(table.code) & status.NEIGHBOR_OVERFLOW
+
+
+def test_full_neighbor_row_is_reported():
+  # One box with 8 touching neighbours and a table of 6.
+  pos = [[x, y] for y in (0.0, 1.0, 2.0) for x in (0.0, 1.0, 2.0)]
+  world = jc.World.create(pos, [0.5, 0.5], 1.0, gravity=(0.0, 0.0))
+  cfg = jc.Config(gravity=False, neighbors=6, margin=0.1)
+  out = jc.resolve(world, cfg)
+  assert int(out.status) == status.NEIGHBOR_OVERFLOW
+  assert any("Config.neighbors" in line for line in jc.check(out))
+  assert int(jc.resolve(world, cfg.replace(neighbors=8)).status) == 0
+
+
+def test_motion_past_half_the_margin_is_reported_not_missed():
+  # Two boxes 0.5 apart; the table is built with margin 0.6, and then box 1 moves 0.45
+  # (more than 0.3) towards box 0: they touch, and the table must say it may be stale.
+  world = jc.World.create([[0.0, 0.0], [1.5, 0.0]], [0.5, 0.5], 1.0, gravity=(0.0, 0.0))
+  cfg = jc.Config(gravity=False, neighbors=4, margin=0.6)
+  table = build_fn(world.pos, world, cfg)
+  assert np.asarray(table.cand.mask)[0].sum() == 1  # 0.5 apart: within the margin.
+  moved = world.pos.at[1, 0].set(1.05)
+  _, code = broadphase.candidates(moved, world, cfg, table)
+  assert int(code) == status.NEIGHBOR_MARGIN
+  _, code = broadphase.candidates(world.pos.at[1, 0].set(1.25), world, cfg, table)
+  assert int(code) == 0  # 0.25 < 0.3: still exact.
+  # A pair outside the margin at the build that then meets: the bit, never a silent miss.
+  narrow = cfg.replace(margin=0.2)
+  table = build_fn(world.pos, world, narrow)
+  assert not np.asarray(table.cand.mask).any()
+  cand, code = broadphase.candidates(moved, world, narrow, table)
+  assert int(code) == status.NEIGHBOR_MARGIN and not np.asarray(cand.mask).any()
+
+
+def test_a_second_pass_past_the_margin_sets_the_bit():
+  # Box 1 sunk 0.4 into box 0 against a wall: the first pass moves it 0.4, more than
+  # margin / 2 = 0.05, and the second pass reads the table built before it.
+  world = jc.World.create([[-1.0, 0.0], [0.0, 0.0], [0.6, 0.0]], [0.5, 0.5],
+                          [np.inf, 1.0, 1.0], gravity=(0.0, 0.0))
+  cfg = jc.Config(gravity=False, depth=3, iterations=2, neighbors=4, margin=0.1)
+  out = jc.resolve(world, cfg)
+  assert int(out.status) & status.NEIGHBOR_MARGIN
+  wide = jc.resolve(world, cfg.replace(margin=1.0))
+  assert int(wide.status) == 0
+  np.testing.assert_array_equal(wide.pos, jc.resolve(world, cfg.replace(neighbors=None)).pos)
+
+
+def test_padded_inactive_bodies_never_enter_the_neighbor_table():
+  world = room(5).world().pad(N)
+  world = world.replace(pos=world.pos.at[27:].set(world.pos[10]))  # Padding piled on a box.
+  cfg = jc.Config(neighbors=10, margin=0.2)
+  table = build_fn(world.pos, world, cfg)
+  listed = np.asarray(table.cand.idx)[np.asarray(table.cand.mask)]
+  assert not np.isin(listed, np.arange(27, N)).any()
+  assert not np.asarray(table.cand.mask)[27:].any()
+  assert not np.asarray(table.cand.mask)[np.asarray(~world.movable)].any()  # Immovable rows.
+
+
+def test_neighbor_table_from_the_grid_matches_dense():
+  world = room(7).world(friction=0.4).pad(N)
+  assert jc.Config.for_world(world, neighbors=12).margin > 1.0  # From the overlaps it starts with.
+  cfg = jc.Config.for_world(world, broadphase="grid", depth=6, neighbors=16, margin=0.6)
+  assert cfg.grid.cell >= 2 * cfg.grid.reach + broadphase.grid_skin(SKIN, cfg.margin)
+  grid_nb, _ = jc.rollout(world, cfg, 20)
+  dense, _ = jc.rollout(world, cfg.replace(broadphase="dense", neighbors=None), 20)
+  assert int(grid_nb.status) & ~status.CRUSHED == 0
+  np.testing.assert_allclose(grid_nb.pos, dense.pos, atol=1e-6)
+  with pytest.raises(ValueError, match="a neighbour table with margin 3.0 needs cells"):
+    jc.resolve(world, cfg.replace(margin=3.0))
+
+
+def test_neighbor_table_under_vmap_and_grad_matches_dense():
+  worlds = jc.stack([room(s, n_boxes=8).world(gravity=(0.0, 0.0)) for s in (1, 2)], capacity=NB)
+  cfg = jc.Config(gravity=False, depth=4, neighbors=8, margin=0.2)
+
+  def loss(pos, config):
+    out = jax.vmap(jc.resolve, in_axes=(0, None))(worlds.replace(pos=pos), config)
+    return jnp.sum(out.pos[..., 0] ** 2 + out.pos[..., 1])
+
+  near = jax.jit(jax.grad(loss), static_argnums=1)(worlds.pos, cfg)
+  far = jax.jit(jax.grad(loss), static_argnums=1)(worlds.pos, cfg.replace(neighbors=None))
+  np.testing.assert_array_equal(near, far)
+  assert np.all(np.isfinite(near))
+
+
+def test_for_world_picks_and_sizes_the_neighbor_table():
+  lattice = scenes.lattice_room(64, 0)
+  world = jc.World.create(lattice.pos, lattice.half, lattice.mass, friction=0.5)
+  cfg = jc.Config.for_world(world)
+  assert cfg.neighbors == sizing.MIN_NEIGHBORS and cfg.margin == pytest.approx(0.25)
+  assert cfg.broadphase == "dense" and cfg.links < cfg.neighbors
+  assert jc.Config.for_world(world, neighbors=None).neighbors is None  # Overrides win.
+  assert jc.Config.for_world(world, margin=0.4).margin == 0.4
+  fast = world.replace(vel=world.vel.at[10].set([0.0, -6.0]))  # Speeds widen the margin.
+  assert jc.Config.for_world(fast).margin == pytest.approx(4 * 2 * (6 + 9.81 / 60) / 60)
+  faster = world.replace(vel=world.vel.at[10].set([0.0, -30.0]))  # Margin 4: rows of ~60.
+  assert jc.Config.for_world(faster, substeps=1).neighbors is None
+  small = scenes.platformer().scene.world()  # 14 bodies: a table of 12 would save nothing.
+  assert jc.Config.for_world(small).neighbors is None
+  final, _ = jc.rollout(world, cfg, 60)
+  assert int(final.status) == 0
+
+
+def test_swept_sensors_read_the_neighbor_table_without_missing_a_crossing():
+  # A bullet (half 0.1) jumps 0.5 a step over a trip wire (half-width 0.05) at x = 0.75:
+  # at no step's end does it overlap the wire. The table holds the swept boxes, so the
+  # sensor sees the crossing in step 2, as with dense pairs, and the margin is not hit.
+  world = jc.World.create([[0.0, 0.0], [0.75, 0.0]], [[0.1, 0.1], [0.05, 1.0]], [1.0, np.inf],
+                          vel=[[30.0, 0.0], [0.0, 0.0]], sensor=[False, True],
+                          gravity=(0.0, 0.0)).pad(4)
+  cfg = jc.Config(gravity=False, friction=False, neighbors=2, margin=0.02)
+  _, near = jc.rollout(world, cfg, 3, record=("sensed", "status"))
+  _, far = jc.rollout(world, cfg.replace(neighbors=None), 3, record=("sensed", "status"))
+  np.testing.assert_array_equal(np.asarray(near.sensed[:, 1]), [False, True, False])
+  np.testing.assert_array_equal(near.sensed, far.sensed)
+  np.testing.assert_array_equal(near.pos, far.pos)
+  np.testing.assert_array_equal(near.status, far.status)  # FAST_BODY only, in both.

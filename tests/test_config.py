@@ -233,3 +233,23 @@ def test_numpy_scalars_are_accepted(kwargs):
 def test_numpy_scalars_of_the_wrong_kind_are_rejected(kwargs, match):
   with pytest.raises(ValueError, match=match):
     jc.Config(**kwargs)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(neighbors=0), "Config.neighbors: expected None or an integer >= 1"),
+    (dict(neighbors=2.5), "Config.neighbors: expected None or an integer >= 1"),
+    (dict(neighbors=True), "Config.neighbors: expected None or an integer >= 1"),
+    (dict(margin=-0.1), "Config.margin: must be >= 0"),
+    (dict(margin=float("nan")), "Config.margin: expected a finite number"),
+    (dict(margin=np.bool_(True)), "Config.margin: expected a finite number"),
+])
+def test_bad_neighbor_table_fields_raise_a_clear_error(kwargs, match):
+  with pytest.raises(ValueError, match=match):
+    jc.Config(**kwargs)
+
+
+def test_neighbor_table_fields_are_stored_as_python_values():
+  cfg = jc.Config(neighbors=np.int64(10), margin=np.float32(0.25))
+  assert cfg.neighbors == 10 and type(cfg.neighbors) is int
+  assert cfg.margin == 0.25 and type(cfg.margin) is float
+  assert cfg == jc.Config(neighbors=10, margin=0.25) and hash(cfg) == hash(cfg.replace())

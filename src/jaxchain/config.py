@@ -67,6 +67,19 @@ class Config:
       the same answer as `depth` hops, bit for bit. Faster when chains are shorter
       than `depth`; not reverse-differentiable (`jax.grad` raises), so leave it off
       for gradients.
+    neighbors: width of the neighbour table, or None to read the coarse candidates
+      (dense pairs or grid rows, by `broadphase`) in every pass. When set, each
+      (sub)step first filters the coarse table once into the partners of each
+      movable body within `margin` (`broadphase.build`), this many per body at most,
+      and every pass and the sensors read that narrow table: the pair stages cost
+      `n * neighbors` instead of `n * n`. Exact: a row with more partners sets
+      `status.NEIGHBOR_OVERFLOW`, and a body that moves more than `margin / 2` along
+      an axis between the build and a use sets `status.NEIGHBOR_MARGIN`; neither is
+      ever a silent miss. `for_world` sizes it from the scene.
+    margin: how far apart (gap along each axis, beyond `skin`) bodies may be and still
+      enter the neighbour table: the motion it allows between its build and its last
+      use in a substep (the resolution passes and the sensors), `margin / 2` per
+      body and axis. `for_world` sizes it from the bodies' sizes and speeds.
   """
 
   dt: float = 1 / 60
@@ -84,6 +97,8 @@ class Config:
   layers: bool = True
   sensors: bool = True
   converge: bool = False
+  neighbors: int | None = None
+  margin: float = 0.0
 
   def __post_init__(self):
     for name, example in (("gravity", "gravity=(0.0, -9.81)"), ("friction", "friction=0.3")):
@@ -94,7 +109,7 @@ class Config:
             f"in the World: World.create(..., {example}) or world.replace({name}=...), with "
             f"Config({name}=True) (the default)")
       object.__setattr__(self, name, bool(v))
-    for name in ("dt", "skin"):
+    for name in ("dt", "skin", "margin"):
       v = getattr(self, name)
       if isinstance(v, bool) or not isinstance(v, _REALS) or not math.isfinite(v):
         raise ValueError(f"Config.{name}: expected a finite number, got {v!r}")
@@ -113,6 +128,15 @@ class Config:
       raise ValueError(f"Config.links: expected None or an integer >= 1, got {self.links!r}")
     if self.links is not None:
       object.__setattr__(self, "links", int(self.links))
+    if self.neighbors is not None and (isinstance(self.neighbors, bool) or
+                                       not isinstance(self.neighbors, (int, np.integer))
+                                       or self.neighbors < 1):
+      raise ValueError(f"Config.neighbors: expected None or an integer >= 1, got "
+                       f"{self.neighbors!r}")
+    if self.neighbors is not None:
+      object.__setattr__(self, "neighbors", int(self.neighbors))
+    if self.margin < 0:
+      raise ValueError(f"Config.margin: must be >= 0, got {self.margin}")
     if not isinstance(self.broadphase, str) or self.broadphase not in BROADPHASES:
       raise ValueError(f"Config.broadphase: expected one of {BROADPHASES}, got {self.broadphase!r}")
     object.__setattr__(self, "broadphase", str(self.broadphase))
@@ -170,7 +194,11 @@ class Config:
     grid row would hold over a quarter of the bodies (then dense is cheaper).
     The link table keeps `max(MIN_LINKS, 2 * most links any movable body has in
     one direction now)` per body and direction (None when that is not below the
-    candidate row: nothing to save). Explicit `overrides` always win.
+    candidate row: nothing to save). The neighbour table (`neighbors`, `margin`;
+    `sizing.neighbor_sizing`) gets a margin of half the thinnest movable body, or
+    more for fast bodies and deep overlaps, and a width of `max(MIN_NEIGHBORS,
+    1.5 * most partners within the margin now)`; it is left out (None) when that is
+    more than half the coarse row (small worlds). Explicit `overrides` always win.
 
     Raises:
       ValueError: when a body would need more than `MAX_SUBSTEPS` substeps (a tiny

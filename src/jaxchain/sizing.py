@@ -24,8 +24,8 @@ from jax import lax
 from jaxchain import broadphase, geometry
 from jaxchain.broadphase import allocate
 
-__all__ = ["DENSE_MAX_BODIES", "MAX_SUBSTEPS", "MIN_LINKS", "allocate", "for_world", "measure",
-           "measure_table"]
+__all__ = ["DENSE_MAX_BODIES", "MAX_SUBSTEPS", "MIN_LINKS", "MIN_NEIGHBORS", "allocate",
+           "for_world", "measure", "measure_neighbors", "measure_table", "neighbor_sizing"]
 
 # Worlds with at most this many body slots use dense all-pairs candidates in
 # `for_world` and "auto". Measured with compact link tables
@@ -42,6 +42,21 @@ MIN_LINKS = 4
 # would get 1.7 million): a tiny or very fast body is nearly always a units mistake.
 # Pass `substeps=` to `for_world` explicitly to run such a scene anyway.
 MAX_SUBSTEPS = 64
+
+# The neighbour table (`Config.neighbors`) `for_world` sizes: at least `MIN_NEIGHBORS`
+# wide (a unit box in a packed room of unit boxes has 8 box partners and up to 2-3
+# walls; a brick bond 10), or `NEIGHBOR_HEADROOM` times the most partners any movable
+# body has now within the margin; used only when that is at most
+# `NEIGHBOR_MAX_FRACTION` of the coarse row (else the build costs more than it saves).
+MIN_NEIGHBORS = 12
+NEIGHBOR_HEADROOM = 1.5
+NEIGHBOR_MAX_FRACTION = 0.5
+# The margin: at least `MARGIN_FRACTION` of the thinnest movable half-extent, and at
+# least `MARGIN_HEADROOM` times the largest motion a resolution pass is expected to
+# cause (twice the fastest speed over a substep, a head-on pair, plus the deepest
+# overlap now): a body may move `margin / 2` before `NEIGHBOR_MARGIN` is raised.
+MARGIN_FRACTION = 0.5
+MARGIN_HEADROOM = 4.0
 
 
 def for_world(cls, world, /, **overrides):
@@ -78,7 +93,8 @@ def for_world(cls, world, /, **overrides):
       sensors=bool(np.any(active & np.asarray(world.sensor))),
       layers=uses_layers(world))
   switches.update({k: v for k, v in overrides.items() if k in switches})
-  derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps", "links")
+  derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps", "links", "neighbors",
+                  "margin")
   base = cls(**{**{k: v for k, v in overrides.items() if k not in derived_keys}, **switches})
   derived = dict(immovable=bool(np.any(active & (inv_mass == 0))))
   if "substeps" not in overrides:
@@ -95,6 +111,13 @@ def for_world(cls, world, /, **overrides):
     else:
       derived.update(broadphase="dense")
   chosen = base.replace(**{**derived, **{k: v for k, v in overrides.items() if k in derived_keys}})
+  if "neighbors" not in overrides or overrides["neighbors"] is not None:
+    table = neighbor_sizing(world, chosen.replace(substeps=derived.get("substeps",
+                                                                        chosen.substeps)),
+                            gravity if base.gravity else 0.0, overrides)
+    derived.update(table)
+    chosen = chosen.replace(**{**table, **{k: v for k, v in overrides.items()
+                                           if k in ("grid", "neighbors", "margin")}})
   uses_grid = chosen.uses_grid(n)
   cap = max(n_movable, 1)
   if not ("depth" in overrides and "links" in overrides):  # Else nothing to measure.
@@ -230,3 +253,88 @@ def measure_table(pos: jax.Array, half: jax.Array, movable: jax.Array,
   length, _, _ = lax.while_loop(lambda s: s[1] & (s[2] < jnp.int32(max_hops)), hop,
                                 (length, jnp.array(True), jnp.array(0, jnp.int32)))
   return jnp.max(length, initial=0), jnp.max(jnp.sum(front, axis=-1, dtype=jnp.int32), initial=0)
+
+
+def neighbor_sizing(world, config, gravity=0.0, overrides=None) -> dict:
+  """The neighbour-table fields `for_world` gives `config` (host): `neighbors`, `margin`,
+  and with the grid a `grid` whose cells hold the margin too.
+
+  The margin is `max(MARGIN_FRACTION * thinnest movable half-extent, MARGIN_HEADROOM *
+  (2 * fastest speed * dt / substeps + deepest overlap))`, the speeds with one step of
+  gravity. The width is `max(MIN_NEIGHBORS, NEIGHBOR_HEADROOM * most partners within
+  the margin now)`, and `neighbors` is None (no table: the coarse rows in every pass)
+  when that is more than `NEIGHBOR_MAX_FRACTION` of the coarse row, or nothing moves.
+  Explicit `overrides` (`neighbors`, `margin`, `grid`) are kept.
+
+  Args:
+    world: a (host) world or padded batch.
+    config: the config chosen so far (broadphase, grid, skin, dt, substeps).
+    gravity: `[2]`, `[b, 2]` or 0 (switched off).
+    overrides: the caller's explicit `Config` fields.
+
+  Returns:
+    A dict of `Config` fields.
+  """
+  overrides = overrides or {}
+  active = np.asarray(world.active)
+  movable = active & (np.asarray(world.inv_mass) > 0)
+  n = int(world.pos.shape[-2])
+  if not movable.any() or n < 2:
+    return dict(neighbors=overrides.get("neighbors"), margin=overrides.get("margin", 0.0))
+  uses_grid = config.uses_grid(n)
+  spec = config.grid if uses_grid else None
+  pos, half = np.asarray(world.pos), np.asarray(world.half)
+  mov = np.asarray(movable)
+  if "margin" in overrides:
+    margin = float(overrides["margin"])
+  else:
+    _, deepest = measure_neighbors(pos, half, active, mov, np.asarray(config.skin, pos.dtype),
+                                   spec=spec, skin=config.skin)
+    half64 = np.asarray(world.half, np.float64)
+    thinnest = float(np.min(np.where(movable[..., None], half64, np.inf)))
+    grav = np.asarray(gravity, np.float64)
+    if grav.ndim >= 1:
+      grav = grav[..., None, :]
+    speed = np.abs(np.asarray(world.vel, np.float64)) + np.abs(grav) * config.dt
+    fastest = float(np.max(np.where(active[..., None], speed, 0.0), initial=0.0))
+    motion = 2 * fastest * config.dt / config.substeps + float(np.max(deepest, initial=0.0))
+    margin = max(MARGIN_FRACTION * thinnest, MARGIN_HEADROOM * motion)
+  reach = broadphase.neighbor_reach(config.skin, margin)
+  out = dict(margin=margin)
+  if uses_grid:
+    spec = overrides.get("grid") or allocate(world, broadphase.grid_skin(config.skin, margin))
+    out["grid"] = spec
+  count, _ = measure_neighbors(pos, half, active, mov, np.asarray(reach, pos.dtype), spec=spec,
+                               skin=broadphase.grid_skin(config.skin, margin))
+  row = spec.row_size if uses_grid else n
+  if "neighbors" in overrides:
+    out["neighbors"] = overrides["neighbors"]
+    return out
+  width = max(MIN_NEIGHBORS, int(np.ceil(NEIGHBOR_HEADROOM * int(np.max(count, initial=0)))))
+  if width > NEIGHBOR_MAX_FRACTION * row:
+    return dict(neighbors=None, margin=0.0)
+  out["neighbors"] = width
+  return out
+
+
+@functools.partial(jax.jit, static_argnames=("spec", "skin"))
+def measure_neighbors(pos, half, active, movable, reach, *, spec: broadphase.GridSpec | None,
+                      skin: float) -> tuple[jax.Array, jax.Array]:
+  """Per world: the most partners any movable body has within the gap `reach` (traced;
+  both axes, as `broadphase.neighbors` counts them) and the deepest overlap (the
+  smaller axis) between a movable body and any other. Dense pairs, or the grid with
+  `spec` (built with `skin`); a single world or a batch."""
+
+  def one(pos, half, active, movable):
+    if spec is None:
+      cand = broadphase.dense(active)
+    else:
+      cand, _ = broadphase.grid(pos, half, active, movable, spec, skin)
+    rows = cand.mask & (active & movable)[:, None]
+    gaps = [jnp.abs(cand.gather(pos[:, k]) - pos[:, k][:, None])
+            - (half[:, k][:, None] + cand.gather(half[:, k])) for k in (0, 1)]
+    near = rows & (gaps[0] <= reach) & (gaps[1] <= reach)
+    depth = jnp.where(rows, jnp.maximum(-jnp.maximum(gaps[0], gaps[1]), 0.0), 0.0)
+    return jnp.max(jnp.sum(near, axis=-1), initial=0), jnp.max(depth, initial=0.0)
+
+  return one(pos, half, active, movable) if pos.ndim == 2 else jax.vmap(one)(pos, half, active, movable)

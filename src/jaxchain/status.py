@@ -33,6 +33,8 @@ class Status(enum.IntFlag):
   SWITCHED_OFF = 1 << 7
   CRUSHED = 1 << 8
   IMPULSES_SCALED = 1 << 9
+  NEIGHBOR_OVERFLOW = 1 << 10
+  NEIGHBOR_MARGIN = 1 << 11
 
   @property
   def message(self) -> str:
@@ -51,6 +53,8 @@ LINK_OVERFLOW = Status.LINK_OVERFLOW
 SWITCHED_OFF = Status.SWITCHED_OFF
 CRUSHED = Status.CRUSHED
 IMPULSES_SCALED = Status.IMPULSES_SCALED
+NEIGHBOR_OVERFLOW = Status.NEIGHBOR_OVERFLOW
+NEIGHBOR_MARGIN = Status.NEIGHBOR_MARGIN
 
 # Every bit's message, in bit order (the order `check` reports them in).
 MESSAGES = {
@@ -83,6 +87,13 @@ MESSAGES = {
                      "pushing one body together, a fan) and were scaled down for the whole "
                      "world: velocities were damped, momentum kept; the next pass or step meets "
                      "those contacts again",
+    NEIGHBOR_OVERFLOW: "a body had more partners within Config.margin than the neighbour table "
+                       "holds (Config.neighbors); contacts may have been missed (re-run "
+                       "Config.for_world on the current world, or raise neighbors)",
+    NEIGHBOR_MARGIN: "a body moved more than Config.margin / 2 along an axis between the "
+                     "neighbour table's build and a pass or the sensors that read it; contacts "
+                     "may have been missed (re-run Config.for_world on the current world, or "
+                     "raise margin or substeps)",
 }
 
 

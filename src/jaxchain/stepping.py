@@ -60,7 +60,7 @@ def _check_single(world: World, fn: str, batch_hint: str | None = None) -> None:
 
 
 def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | None = None,
-            vel: jax.Array | None = None):
+            vel: jax.Array | None = None, table: broadphase.Neighbors | None = None):
   """`config.iterations` resolution passes from `pos`.
 
   A pass is a flat pipeline, one call a stage, each reading what the stages before it
@@ -68,7 +68,9 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
   links (`geometry.links`, built once and read by every later stage), resolution
   (`chain.displacement`: the push hops carry the positions and, with `vel`, the
   contact impulses in the same hops), velocities (the impulses, then the crush rule),
-  friction, flags. So a pass's velocities always follow its positions.
+  friction, flags. So a pass's velocities always follow its positions. With
+  `config.neighbors` every pass reads one neighbour table, `table` or built here at
+  `pos` (`broadphase.build`), and checks its margin.
 
   Returns:
     `(pos, vel, status, crushed, touching)` (`vel` None without `vel`; `touching`
@@ -86,10 +88,11 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
   if config.immovable and start is not None:
     surface = world.active & (world.inv_mass == 0)
     surface = surface & ~world.one_way if config.one_way else surface
+  table = broadphase.build(pos, world, config, start) if table is None else table
 
   def one_pass(_, carry):
     p, v, code, _, crushed, touching = carry
-    cand, found = broadphase.candidates(p, world, config)
+    cand, found = broadphase.candidates(p, world, config, table)
     cand = flags.admit(cand, world, layers=config.layers, sensors=config.sensors)
     ow = one_way if one_way is None or v is None else dataclasses.replace(one_way, vel=v)
     front, overflow = geometry.links(p, world.half, cand, skin=config.skin, limit=config.links,
@@ -122,15 +125,16 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
   return p, v, code, crushed, touching
 
 
-def _sensed(world: World, pos: jax.Array, config: Config, *,
+def _sensed(world: World, pos: jax.Array, config: Config,
+            table: broadphase.Neighbors | None = None, *,
             start: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
   """`World.sensed` at `pos`, or with `start` swept over the straight motion from
   `start` to `pos` (a substep: `flags.sensed`); all False without `config.sensors`.
   Also the status bits of the candidate table it reads (built again at `pos`: the
-  bodies have moved)."""
+  bodies have moved; or a substep's neighbour `table`, checked against its margin)."""
   if not config.sensors:
     return jnp.zeros_like(world.sensed), jnp.zeros((), jnp.int32)
-  cand, found = broadphase.candidates(pos, world, config)
+  cand, found = broadphase.candidates(pos, world, config, table)
   return flags.sensed(world, pos, cand, start), found
 
 
@@ -222,10 +226,13 @@ def _substep(world: World, config: Config, sub_dt: float, accel: jax.Array | Non
     vel = vel + jnp.where(world.movable[:, None], world.gravity[None] * sub_dt, 0.0)
   code = jnp.where(_too_fast(world, vel, sub_dt), status.FAST_BODY, 0)
   predicted = world.pos + jnp.where(world.active[:, None], vel * sub_dt, 0.0)
-  pos, vel, found, crushed, touching = _passes(world, predicted, config, start=world.pos, vel=vel)
+  table = broadphase.build(predicted, world, config, world.pos)  # None without neighbors.
+  pos, vel, found, crushed, touching = _passes(world, predicted, config, start=world.pos, vel=vel,
+                                               table=table)
   # Sensors see every overlap during the step: swept over this substep's motion (from
-  # a candidate table at its end positions), ORed over the substeps.
-  sensed, seen = _sensed(world, pos, config, start=world.pos)
+  # a candidate table at its end positions, or the substep's neighbour table: it holds
+  # the swept boxes), ORed over the substeps.
+  sensed, seen = _sensed(world, pos, config, table, start=world.pos)
   code = code | found | seen | _finite_code(world, pos, vel) | _crushed_code(crushed)
   return dataclasses.replace(world, pos=pos, vel=vel, crushed=world.crushed | crushed,
                              touching=world.touching | touching.T, sensed=world.sensed | sensed,
