@@ -503,11 +503,12 @@ def reference_step(world, config=EXACT):
                         np.where(np.asarray(world.inv_mass)[:n] == 0, INF, 0.0),
                         friction=np.asarray(world.friction)[:n],
                         gravity=tuple(np.asarray(world.gravity, np.float64)), dt=config.dt,
-                        skin=config.skin)
+                        skin=config.skin,
+                        one_way=np.asarray(world.one_way)[:n] if config.one_way else None)
 
 
 @st.composite
-def columns(draw, touching=False, capacity=N_ROOM):
+def columns(draw, touching=False, capacity=N_ROOM, one_way=False):
   """Up to three columns of up to four boxes on a floor, random masses over four
   decades: chains and stacks, where the reference's sequential solve is the unique
   answer. Either with gaps and vertical velocities (contacts made and broken within a
@@ -525,14 +526,20 @@ def columns(draw, touching=False, capacity=N_ROOM):
       vel.append([draw(st.floats(-3.0, 3.0)), vy])
       y += hy
   friction = draw(st.floats(0.0, 1.0)) if touching else 0.0
-  return jc.World.create(pos, half, mass, vel=vel, friction=friction).pad(capacity)
+  # With `one_way`: the floor and each box one-way with probability 1/3 (a one-way
+  # floor holds what falls on it; a one-way crate falls through a box, not a box
+  # through it).
+  flags = draw(st.lists(st.sampled_from([False, False, True]), min_size=len(pos),
+                        max_size=len(pos))) if one_way else [False] * len(pos)
+  return jc.World.create(pos, half, mass, vel=vel, friction=friction,
+                         one_way=np.array(flags)).pad(capacity)
 
 
-def assert_matches_reference(world, steps):
+def assert_matches_reference(world, steps, config=EXACT, step_fn=step_exact):
   w = world
   for _ in range(steps):
-    want_pos, want_vel = reference_step(w)
-    w = step_exact(w)
+    want_pos, want_vel = reference_step(w, config)
+    w = step_fn(w)
     n = len(want_pos)
     np.testing.assert_allclose(w.pos[:n], want_pos, **TOL["reference"])
     # A light body passing a heavy one's impulse on to the floor gets its velocity as
@@ -552,6 +559,16 @@ def test_step_matches_the_reference_on_falling_columns(world):
 @given(columns(touching=True))
 def test_step_matches_the_reference_on_sliding_columns_with_friction(world):
   assert_matches_reference(world, 3)
+
+
+EXACT_ONE_WAY = EXACT.replace(one_way=True)
+step_exact_one_way = jax.jit(lambda w: jc.step(w, EXACT_ONE_WAY))
+
+
+@given(columns(one_way=True))
+def test_step_matches_the_reference_on_falling_columns_with_one_way_bodies(world):
+  # The one-way rule (geometry._one_way_rule) and its mirror (reference._Scene.admits).
+  assert_matches_reference(world, 3, EXACT_ONE_WAY, step_exact_one_way)
 
 
 @pytest.mark.parametrize("name", ["head_on", "row", "slide", "rider", "edge_fall"])
