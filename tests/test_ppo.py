@@ -46,7 +46,7 @@ def test_tiny_run_return_rises(tmp_path):
   assert np.all(np.asarray(curve["episodes"]) == 8)  # Every env ends one episode per update.
   assert np.all(np.isfinite(ret))
   first, last = ret[:4].mean(), ret[-4:].mean()
-  assert last > first + 0.05, (first, last, ret)
+  assert last > first + 0.15, (first, last, ret)  # Seeds 0-2: about 0.22 -> 0.55.
   assert np.all(np.isfinite(np.asarray(policy["norm"]["var"])))
   csv_path, png_path = ppo.write_curve(tmp_path / "curve", curve, "tiny")
   back = ppo.read_curve(csv_path)
