@@ -126,12 +126,12 @@ def _gymnax_class():
     Examples:
       >>> import jax
       >>> from jaxchain import bridges
-      >>> env = bridges.GymnaxEnv("push_box_easy")  # doctest: +SKIP
-      >>> params = env.default_params  # doctest: +SKIP
-      >>> obs, state = env.reset(jax.random.key(0), params)  # doctest: +SKIP
-      >>> action = env.action_space(params).sample(jax.random.key(1))  # doctest: +SKIP
+      >>> env = bridges.GymnaxEnv("push_box_easy")
+      >>> params = env.default_params
+      >>> obs, state = env.reset(jax.random.key(0), params)
+      >>> action = env.action_space(params).sample(jax.random.key(1))
       >>> obs, state, reward, terminated, truncated, info = env.step(
-      ...     jax.random.key(2), state, action, params)  # doctest: +SKIP
+      ...     jax.random.key(2), state, action, params)
     """
 
     _supports_transition_gradients = True
