@@ -96,10 +96,9 @@ def test_a_body_hitting_a_wall_of_tiles_at_a_seam_keeps_falling():
   np.testing.assert_allclose(traj.pos[0, 0], ref_pos[0], atol=1e-5)
 
 
-@pytest.mark.xfail(strict=True, reason="a rounding overlap (6e-8) along y makes the pair "
-                   "'overlapping at the start': no level/seam rule, smaller overlap picks x, "
-                   "a slow body stops at a seam")
 def test_a_slow_body_crosses_a_seam():
+  # Fixed: a rounding overlap within the skin at the start counts as touching
+  # (geometry.contacts, reference._Scene.contact), so the level and seam rules apply.
   # A frictionless box (half 0.3) rests on unit tile B (x in [6, 7]) with its left edge on
   # the seam x = 6 to tile A, moving left at 0.0207 u/s (3.45e-4 per step). In the second
   # step its edge is 3.45e-4 over A (beyond the skin) and, in float32, 6e-8 into A's top:
@@ -135,8 +134,9 @@ def three_stack(m_b: float):
                          friction=[1.0, 0.25, 0.2025, 0.0])
 
 
-@pytest.mark.xfail(strict=True, reason="a slipping link carries its whole budget with no clip to "
-                   "the sliding it stops: friction drives B backwards past A (reverses sliding)")
+@pytest.mark.xfail(strict=True, reason="one holding test, on the first units: the A-B link is "
+                   "judged carrying C (whose own frictionless link slips) and slips too, so B "
+                   "keeps its speed while A slows")
 def test_friction_never_drives_a_link_to_slide_the_way_it_pushes():
   # Coulomb: C is frictionless and keeps 3 u/s; A and B slow down together on the floor's
   # budget 0.5 * 11.1 g dt (B needs 0.1 * 0.825 of shear from A, its link holds 0.743):
@@ -175,9 +175,8 @@ def test_a_link_never_carries_more_than_its_budget():
   assert v[1] == pytest.approx(3.0 - 1.3 * G * DT, abs=1e-4)
 
 
-@pytest.mark.xfail(strict=True, reason="reference._friction: a slipping link's whole budget on a "
-                   "light box adds energy in an undriven step that starts without overlap")
 def test_reference_friction_never_adds_energy():
+  # Fixed: a slipping link no longer carries a forced impulse (it rubs like any link).
   # The three-box stack with a thin box of mass 0.01: reference.step gains 4.2 J in the
   # first step (B at -33.8 u/s). (jc.step scales the update down and sets
   # IMPULSES_SCALED, on a plain stack.)

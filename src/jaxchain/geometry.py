@@ -112,7 +112,8 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
 
   The contact axis of a pair that overlapped at `start` (or of every pair, without
   `start`) is the axis of smaller overlap (ties go to x). A pair that was separated at
-  `start` (not overlapping along both axes; touching counts as separated) takes the
+  `start` (not overlapping beyond `skin` along both axes; touching, or a rounding
+  overlap within `skin`, counts as separated) takes the
   axis along which the motion from `start` to `pos` closed the gap last: its time of
   impact. That is the axis the two boxes met along, so a box falling onto the edge of
   another lands on it instead of being pushed sideways (`impact_axis`).
@@ -154,7 +155,9 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
   if start is not None:
     dx0, dy0 = partner(start, 0) - col(start, 0), partner(start, 1) - col(start, 1)
     ox0, oy0 = hx - jnp.abs(dx0), hy - jnp.abs(dy0)
-    separated = (ox0 <= 0) | (oy0 <= 0)
+    # Apart at the start: not overlapping by more than the skin along some axis (a
+    # float32 rounding overlap at a resting contact counts as touching).
+    separated = (ox0 <= skin) | (oy0 <= skin)
     use_y = jnp.where(separated, _impact_axis(ox0, oy0, ox, oy, use_y, skin), use_y)
     if surface is not None:
       use_y = seam_axis(cand, half, surface, dx0, dy0, ox0, oy0, skin, use_y)

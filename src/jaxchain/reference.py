@@ -61,9 +61,10 @@ class _Scene:
     b lies in direction `sign` along `axis` from a.
 
     The axis is the one of smaller overlap (x on a tie), except for a pair that was
-    separated at `start` (not overlapping along both axes): then it is the axis along
-    which their faces were level at `start` (overlap within the skin) if that holds for
-    exactly one axis, else the axis along which the gap closed last on the straight
+    apart at `start` (not overlapping by more than the skin along some axis): then it is
+    the axis along which their faces were level at `start` (overlap within the skin) if
+    that holds for exactly one axis, else the axis along which the gap closed last on
+    the straight
     path from `start` to now (its time of impact); the side is the one b lay on at
     `start`. A pair level along both axes at `start` (a corner contact) then takes the
     axis a surface of immovable bodies beside the corner decides, if one does
@@ -75,7 +76,7 @@ class _Scene:
     if self.start is not None:
       delta0 = self.start[b] - self.start[a]
       o0 = self.half[a] + self.half[b] - np.abs(delta0)
-      if min(o0) <= 0:  # Separated at the start.
+      if min(o0) <= self.skin:  # Apart at the start (a rounding overlap is touching).
         level = [abs(o0[k]) <= self.skin for k in range(2)]
         t = [0.0 if o0[k] > 0 else 2.0 if o[k] <= 0 else -o0[k] / (o[k] - o0[k])
              for k in range(2)]
@@ -85,7 +86,7 @@ class _Scene:
           axis = 1 if t[1] > t[0] else 0
       if abs(o0[0]) <= self.skin and abs(o0[1]) <= self.skin:  # A corner contact: seams.
         axis = self.seam_axis(a, b, delta0, axis)
-      if min(o0) <= 0:
+      if min(o0) <= self.skin:
         delta = delta0
     if delta[axis] > 0 or (delta[axis] == 0 and b > a):
       sign = 1.0
@@ -454,8 +455,8 @@ def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
   velocities that decide which links stick (slide slower than `stick`); links sliding
   slower than `slip` take no part. Solved on those units once; a sticking link whose
   budget `sqrt(mu_i mu_j) * normal` cannot hold the shear that moving as one needs
-  slips, and the impulses are solved again on the units without it, the slipping link
-  carrying its whole budget in the direction of that shear."""
+  slips, and the impulses are solved again on the units without it (the slipping link
+  rubs like any other once its bodies slide apart)."""
   n = len(vel)
   movable = ~np.isinf(mass)
   sticking = [abs(before[i, 1 - a] - before[j, 1 - a]) <= stick for i, j, a, _ in links]
@@ -463,10 +464,9 @@ def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
   rubbing = [b > 0 and abs(vel[i, 1 - a] - vel[j, 1 - a]) > slip
              for (i, j, a, _), b in zip(links, budgets)]
 
-  def solve(sticking, forced):
-    """Velocity changes on the units of the `sticking` links, with the links in
-    `forced` (index -> impulse) carrying that impulse; also each body's change per
-    unit direction, its units and their pushers."""
+  def solve(sticking):
+    """Velocity changes on the units of the `sticking` links; also each body's change
+    per unit direction, its units and their pushers."""
     def ahead(q, axis, sign):  # Bodies in front of q along (axis, sign), sticking links.
       out = []
       for (i, j, a, s), st in zip(links, sticking):
@@ -494,38 +494,27 @@ def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
       for k in ahead(q, axis, sign):
         deliver(k, axis, sign, value / pushers(k, axis, sign), dv, along)
 
-    active = [r or (k in forced) for k, r in enumerate(rubbing)]
-    count = np.zeros(n)  # Links solved (not forced) per body.
-    kinetic = np.zeros_like(vel)  # What the forced links do to their own bodies.
-    for k, ((i, j, axis, sign), act) in enumerate(zip(links, active)):
-      if act and k not in forced:
+    count = np.zeros(n)
+    for (i, j, _, _), r in zip(links, rubbing):
+      if r:
         count[i] += 1
         count[j] += 1
-      if k in forced:
-        unit_i, unit_j = unit(i, axis, -sign), unit(j, axis, sign)
-        kinetic[i, 1 - axis] -= forced[k] / unit_i if unit_i > 0 else 0.0
-        kinetic[j, 1 - axis] += forced[k] / unit_j if unit_j > 0 else 0.0
-    after = vel + kinetic
     dv = np.zeros_like(vel)
     along = {(a, s): np.zeros(n) for a in (0, 1) for s in (1.0, -1.0)}
-    for k, ((i, j, axis, sign), b) in enumerate(zip(links, budgets)):
-      if not active[k]:
+    for (i, j, axis, sign), b, r in zip(links, budgets, rubbing):
+      if not r:
         continue
       t = 1 - axis
       unit_i, unit_j = unit(i, axis, -sign), unit(j, axis, sign)
-      if k in forced:
-        impulse = forced[k]
-      else:
-        w = (count[i] / unit_i if unit_i > 0 else 0.0) + (count[j] / unit_j if unit_j > 0 else 0.0)
-        impulse = np.clip((after[i, t] - after[j, t]) / w, -b, b)
+      w = (count[i] / unit_i if unit_i > 0 else 0.0) + (count[j] / unit_j if unit_j > 0 else 0.0)
+      impulse = np.clip((vel[i, t] - vel[j, t]) / w, -b, b)
       if unit_i > 0:
         deliver(i, axis, -sign, -impulse / unit_i, dv, along)
       if unit_j > 0:
         deliver(j, axis, sign, impulse / unit_j, dv, along)
     return dv, along, unit, pushers
 
-  dv, along, unit, pushers = solve(sticking, {})
-  forced = {}
+  dv, along, unit, pushers = solve(sticking)
   for k, ((i, j, axis, sign), st, b) in enumerate(zip(links, sticking, budgets)):
     if not st:
       continue
@@ -540,7 +529,5 @@ def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
         i, axis, -sign)
     if abs(shear) > b:
       sticking[k] = False
-      if b > 0:
-        forced[k] = float(np.clip(shear, -b, b))
-  dv, _, _, _ = solve(sticking, forced)
+  dv, _, _, _ = solve(sticking)
   return vel + dv

@@ -58,10 +58,11 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
   budget holds the shear that moving as one needs (`_holding`). The impulses are
   solved once on the units the chain built; a sticking link whose share of its unit's
   velocity change needs more shear than `mu_pair * normal` slips, and the impulses are
-  solved again on the units without it, the slipping link carrying its whole budget
-  (kinetic friction) in the direction of that shear. So a frictionless box on a
-  sliding stack keeps sliding, one on a box held by friction on a slope slides down
-  it, and the motion depends on every link's coefficient.
+  solved again on the units without it. The slipping link is then an ordinary link:
+  it rubs (at most its budget, never reversing its sliding) once its bodies slide
+  apart, from the next pass or step. So a frictionless box on a sliding stack keeps
+  sliding, one on a box held by friction on a slope slides down it, and the motion
+  depends on every link's coefficient.
 
   Args:
     vel: `[n, 2]` velocities after the normal impulses.
@@ -83,28 +84,21 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
   sliding = jnp.where(front.mask, tangent[None] - front.gather(tangent), 0.0)
   mu_pair = _safe_sqrt(coefficient[None, None] * front.gather_bodies(coefficient))
   budget = jnp.where(front.mask, mu_pair * normal, 0.0)
-  rubbing = (budget > 0) & (jnp.abs(sliding) > SLIP)  # Links friction solves.
+  rubbing = (budget > 0) & (jnp.abs(sliding) > SLIP)
   back = front.reversed()
   movable = jnp.any(shared > 0, axis=0)[None]
 
-  def solve(shared, sticking, slipping, forced):
-    """Impulses on the units `shared` (made of `sticking` links); `slipping` links
-    carry `forced`. Returns `(impulse [l, 4, n], total [4, n], count [4, n])`: `total`
-    is each body's tangential velocity change as part of its unit along each direction,
-    `count` its sticking pushers along it."""
-    solved = rubbing & ~slipping
-    k = jnp.broadcast_to(jnp.sum(solved, axis=(0, 1)).astype(dtype), tangent.shape)  # [4, n]
+  def solve(shared, sticking):
+    """Impulses on the units `shared` (made of `sticking` links). Returns `(impulse
+    [l, 4, n], total [4, n], count [4, n])`: `total` is each body's tangential velocity
+    change as part of its unit along each direction, `count` its sticking pushers
+    along it."""
+    k = jnp.broadcast_to(jnp.sum(rubbing, axis=(0, 1)).astype(dtype), tangent.shape)  # [4, n]
     unit_i = geometry.opposite(shared)  # [4, n]: at (d, i), i's unit along e.
     inv_i = safe_divide(k, unit_i)  # k_i / S_e(i): 0 for an immovable body.
     inv_j = front.gather(safe_divide(k, shared))  # k_j / S_d(j).
-    # The other links stop the sliding that remains once the slipping ones have acted
-    # on their own bodies (else a box under a slipping one would creep down a slope).
-    kinetic = safe_divide(-jnp.sum(jnp.where(slipping, forced, 0.0), axis=0), unit_i)
-    kinetic = jnp.stack([kinetic[0] + kinetic[1]] * 2 + [kinetic[2] + kinetic[3]] * 2)
-    after = tangent + kinetic
-    remaining = jnp.where(front.mask, after[None] - front.gather(after), 0.0)
-    stop = jnp.clip(safe_divide(remaining, inv_i[None] + inv_j), -budget, budget)
-    impulse = jnp.where(slipping, forced, jnp.where(rubbing, stop, 0.0))
+    stop = jnp.clip(safe_divide(sliding, inv_i[None] + inv_j), -budget, budget)
+    impulse = jnp.where(rubbing, stop, 0.0)
     # Entry (d, i): i's unit along e changes its tangential velocity by -impulse / S_e(i).
     source = geometry.opposite(safe_divide(-jnp.sum(impulse, axis=0), unit_i))  # At (e, i).
     carries = geometry.opposite(sticking, 1)  # Rows of `back`: k behind j, sticking.
@@ -117,13 +111,10 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
     total = chain.repeat(hop, jnp.where(movable, source, 0.0), depth, converge)
     return impulse, total, count
 
-  impulse, total, count = solve(shared, sticking, jnp.zeros_like(sticking), budget)
-  shear = _holding(front, total, shared, count)
-  holds = jnp.abs(shear) <= budget
-  slipping = sticking & ~holds & (budget > 0)
+  impulse, total, count = solve(shared, sticking)
+  holds = jnp.abs(_holding(front, total, shared, count)) <= budget
   sticking = sticking & holds
-  impulse, total, _ = solve(_units(front, mass, sticking, depth, converge), sticking, slipping,
-                            jnp.clip(shear, -budget, budget))
+  impulse, total, _ = solve(_units(front, mass, sticking, depth, converge), sticking)
   # Units along x (e = 0, 1) slide along y, units along y along x.
   change = jnp.stack([total[2] + total[3], total[0] + total[1]], axis=-1)
   # Energy guard, as for the normal impulses: friction may only take energy, beyond
