@@ -1,0 +1,242 @@
+"""Neighbour tables (`Config.neighbors`) against dense pairs and the grid, in one run.
+
+Rows, all compile excluded, medians of rounds that alternate the settings (so drift of
+a shared machine hits them alike):
+
+- room of 64 (`jaxchain.scenes.lattice_room(64)`, 68 bodies, friction 0.5, settled 120
+  steps, `Config.for_world`): 30-step rollouts of B worlds, jitted and vmapped, with
+  the neighbour table `for_world` picks and with `neighbors=None` (dense pairs in every
+  pass: the same config otherwise). Body-steps/s and the ratio.
+- the pair stages' share of that step: one jitted, vmapped substep's pair work (the
+  neighbour table's build, then contacts at the predicted and start positions and the
+  link table, as a pass runs them) over the full step, each timed alone.
+- the demo scene (14 bodies): `for_world` (which leaves the table out at 14 bodies)
+  beside forced tables of 8 and 12.
+- the grid: lattice rooms of N = 64 and 4096 (B = 256 and 4), 10-step rollouts, ns
+  per body-step, with `for_world` (grid rows compacted to the neighbour table at 4096)
+  and with `neighbors=None` (the grid rows in every pass).
+- with `--against REV`: the room rollout of commit REV (exported with `git archive`,
+  run in a child interpreter with only that tree on the path), alternating with this
+  tree's.
+
+Writes `neighbors.md` into `--out` (default `benchmarks/results`).
+
+    python benchmarks/neighbors.py                      # about 6 minutes on 2 quiet cores
+    python benchmarks/neighbors.py --against f55f53b
+    python benchmarks/neighbors.py --smoke --out /tmp/x # tiny sizes: runs, writes the table
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pathlib
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxchain as jc
+from jaxchain import broadphase, geometry, scenes, stepping
+from _bench import machine
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+def room(n: int, settle: int) -> tuple[jc.World, jc.Config]:
+  s = scenes.lattice_room(n, 0)
+  world = jc.World.create(s.pos, s.half, s.mass, friction=0.5)
+  cfg = jc.Config.for_world(world)
+  if settle:
+    world, _ = jc.rollout(world, cfg, settle)
+  return world, cfg
+
+
+def demo(settle: int) -> tuple[jc.World, jc.Config]:
+  world = scenes.platformer().scene.world(friction=0.3)
+  cfg = jc.Config.for_world(world)
+  if settle:
+    world, _ = jc.rollout(world, cfg, settle, controls=np.zeros((14, 2), np.float32))
+  return world, cfg
+
+
+def rollout_fn(cfg: jc.Config, steps: int):
+  return jax.vmap(lambda w: jc.rollout(w, cfg, steps)[0].pos)
+
+
+def pair_fn(cfg: jc.Config):
+  """One substep's pair work, as `_substep` and a pass run it: the table (if any) at the
+  predicted positions, the candidates, contacts at predicted and start, the link table."""
+  def fn(w):
+    predicted = w.pos + w.vel * (cfg.dt / cfg.substeps)
+    table = broadphase.build(predicted, w, cfg, w.pos)
+    cand, code = broadphase.candidates(predicted, w, cfg, table)
+    front, overflow = geometry.links(predicted, w.half, cand, skin=cfg.skin, limit=cfg.links,
+                                     rows=w.movable, start=w.pos)
+    return jnp.sum(front.overlap), jnp.sum(front.mask), code | overflow
+  return jax.vmap(fn)
+
+
+def step_fn(cfg: jc.Config):
+  return jax.vmap(lambda w: stepping._step(w, cfg, None).pos)
+
+
+def timed(fns: dict, args: dict, rounds: int) -> dict:
+  """Median seconds of each compiled `fns[k](args[k])`, rounds alternating the keys."""
+  compiled = {}
+  for k, fn in fns.items():
+    compiled[k] = jax.jit(fn).lower(args[k]).compile()
+    jax.block_until_ready(compiled[k](args[k]))
+  times = {k: [] for k in fns}
+  for _ in range(rounds):
+    for k in fns:
+      t0 = time.perf_counter()
+      jax.block_until_ready(compiled[k](args[k]))
+      times[k].append(time.perf_counter() - t0)
+  return {k: statistics.median(v) for k, v in times.items()}
+
+
+CHILD = """
+import sys, time, statistics, jax, numpy as np, jaxchain as jc
+from jaxchain import scenes
+b, steps, settle, rounds = (int(x) for x in sys.argv[1:5])
+s = scenes.lattice_room(64, 0)
+w = jc.World.create(s.pos, s.half, s.mass, friction=0.5)
+cfg = jc.Config.for_world(w)
+if settle:
+  w, _ = jc.rollout(w, cfg, settle)
+ws = jc.stack([w] * b)
+f = jax.jit(jax.vmap(lambda w: jc.rollout(w, cfg, steps)[0].pos)).lower(ws).compile()
+jax.block_until_ready(f(ws))
+for _ in range(rounds):
+  t0 = time.perf_counter(); jax.block_until_ready(f(ws)); print(time.perf_counter() - t0, flush=True)
+"""
+
+
+def against(rev: str, b: int, steps: int, settle: int, rounds: int) -> list[float]:
+  """Seconds per room rollout of commit `rev`, from a child interpreter."""
+  with tempfile.TemporaryDirectory() as tmp:
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "src"], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+    env = dict(os.environ, PYTHONPATH=str(pathlib.Path(tmp) / "src"))
+    out = subprocess.run([sys.executable, "-c", CHILD, str(b), str(steps), str(settle),
+                          str(rounds)], env=env, check=True, capture_output=True, text=True,
+                         cwd=tmp).stdout
+  return [float(x) for x in out.split()]
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--smoke", action="store_true",
+                      help="tiny sizes, seconds: checks that the script runs and writes its table")
+  parser.add_argument("--out", type=pathlib.Path, default=RESULTS, metavar="DIR",
+                      help="directory for neighbors.md (default benchmarks/results)")
+  parser.add_argument("--rounds", type=int, default=5)
+  parser.add_argument("--against", default=None, metavar="REV",
+                      help="also time the room rollout of this commit (git archive)")
+  args = parser.parse_args()
+  smoke = args.smoke
+  rounds = 1 if smoke else args.rounds
+  settle = 0 if smoke else 120
+  steps = 1 if smoke else 30
+  batches = (2,) if smoke else (256, 1024)
+  started = time.perf_counter()
+  header = machine()
+  lines = ["# Neighbour tables against dense pairs and the grid", "",
+           f"`python benchmarks/neighbors.py{' --smoke' * smoke}"
+           f"{f' --against {args.against}' if args.against else ''}`, {header}. "
+           f"Medians of {rounds} rounds alternating the settings, compile excluded."]
+
+  # Room of 64: rollouts.
+  world, cfg = room(16 if smoke else 64, settle)
+  if cfg.neighbors is None:  # The smoke room is small: force a table to run its path.
+    cfg = cfg.replace(neighbors=8, margin=0.25)
+  dense = cfg.replace(neighbors=None, margin=0.0)
+  n = world.num_bodies
+  lines += ["", f"## Room of {n - 4} ({n} bodies), {steps}-step rollouts", "",
+            f"`for_world`: neighbors {cfg.neighbors}, margin {cfg.margin:.3g}, links {cfg.links}, "
+            f"depth {cfg.depth}, {cfg.broadphase}, substeps {cfg.substeps}.", "",
+            "| B | dense pairs, body-steps/s | neighbour table, body-steps/s | speedup |"
+            + (f" {args.against}, body-steps/s | speedup over {args.against} |" if args.against else ""),
+            "|---|---|---|---|" + ("---|---|" if args.against else "")]
+  for b in batches:
+    ws = jc.stack([world] * b)
+    t = timed({"dense": rollout_fn(dense, steps), "table": rollout_fn(cfg, steps)},
+              {"dense": ws, "table": ws}, rounds)
+    rate = {k: b * n * steps / v for k, v in t.items()}
+    row = f"| {b} | {rate['dense']:.3g} | {rate['table']:.3g} | {t['dense'] / t['table']:.2f}x |"
+    if args.against:
+      base = statistics.median(against(args.against, b, steps, settle, rounds))
+      row += f" {b * n * steps / base:.3g} | {base / t['table']:.2f}x |"
+    lines.append(row)
+
+  # Pair-stage share.
+  b = batches[0]
+  ws = jc.stack([world] * b)
+  fns = {"pair dense": pair_fn(dense), "step dense": step_fn(dense),
+         "pair table": pair_fn(cfg), "step table": step_fn(cfg)}
+  t = timed(fns, {k: ws for k in fns}, 1 if smoke else 9)
+  per = {k: v * 1e9 / (b * n) for k, v in t.items()}
+  lines += ["", f"## Pair stages' share of a room-of-{n - 4} step (B = {b})", "",
+            "Pair stages: the neighbour table's build (none for dense), contacts at the predicted "
+            "and the start positions, the link table; each function timed alone.", "",
+            "| candidates | pair stages, ns/body | step, ns/body | share |", "|---|---|---|---|"]
+  for k, name in (("dense", "dense pairs (m = n)"), ("table", f"neighbour table (m = {cfg.neighbors})")):
+    lines.append(f"| {name} | {per['pair ' + k]:.0f} | {per['step ' + k]:.0f} | "
+                 f"{per['pair ' + k] / per['step ' + k]:.0%} |")
+
+  # Demo scene.
+  world, cfg = demo(0 if smoke else 60)
+  b = batches[-1]
+  ws = jc.stack([world] * b)
+  n = world.num_bodies
+  settings = {"for_world": cfg}
+  settings.update({f"neighbors={k}": cfg.replace(neighbors=k, margin=0.25)
+                   for k in ((8,) if smoke else (8, 12))})
+  t = timed({k: rollout_fn(c, steps) for k, c in settings.items()}, {k: ws for k in settings},
+            rounds)
+  lines += ["", f"## Demo scene ({n} bodies), B = {b}, {steps}-step rollouts", "",
+            f"`for_world` picks neighbors {cfg.neighbors} (a table of 12 at 14 bodies saves nothing).",
+            "", "| config | world-steps/s | against for_world |", "|---|---|---|"]
+  for k in settings:
+    lines.append(f"| {k} | {b * steps / t[k]:.3g} | {t['for_world'] / t[k]:.2f}x |")
+
+  # Grid at N = 4096 against N = 64.
+  sizes = ((256, 1),) if smoke else ((64, 256), (4096, 4))
+  gsteps = 1 if smoke else 10
+  lines += ["", f"## Per body-step against N, {gsteps}-step rollouts", "",
+            "| N | B | config | ns per body-step |", "|---|---|---|---|"]
+  for size, b in sizes:
+    s = scenes.lattice_room(size, 0)
+    world = jc.World.create(s.pos, s.half, s.mass, friction=0.5)
+    cfg = jc.Config.for_world(world)
+    ws = jc.stack([world] * b)
+    n = world.num_bodies
+    settings = {"for_world": cfg, "neighbors=None": cfg.replace(neighbors=None, margin=0.0)}
+    if cfg.uses_grid(n):
+      settings["neighbors=None"] = settings["neighbors=None"].replace(
+          grid=broadphase.allocate(world, cfg.skin))
+    t = timed({k: rollout_fn(c, gsteps) for k, c in settings.items()}, {k: ws for k in settings},
+              rounds)
+    for k, c in settings.items():
+      what = (f"{'grid' if c.uses_grid(n) else 'dense'}, neighbors {c.neighbors}"
+              + (f", row {c.grid.row_size}" if c.uses_grid(n) else ""))
+      lines.append(f"| {n} | {b} | {k}: {what} | {t[k] * 1e9 / (b * n * gsteps):.0f} |")
+
+  lines += ["", f"Wall time {time.perf_counter() - started:.0f} s; 1-min load at the end "
+            f"{os.getloadavg()[0]:.2f}."]
+  args.out.mkdir(parents=True, exist_ok=True)
+  (args.out / "neighbors.md").write_text("\n".join(lines) + "\n")
+  print("\n".join(lines))
+
+
+if __name__ == "__main__":
+  main()
