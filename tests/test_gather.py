@@ -1,6 +1,7 @@
 """jaxchain.gather.take: the same values as plain indexing under every transformation."""
 
 import jax
+import jax.extend
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -62,3 +63,29 @@ def test_gradients_in_both_modes_and_under_vmap():
 def test_rejects_a_table_that_is_not_1d():
   with pytest.raises(ValueError, match="1-D table"):
     take(TABLE[0], IDX[0, 0])
+
+
+def _primitives(jaxpr) -> list[str]:
+  """Every primitive of `jaxpr` and of the jaxprs inside it."""
+  out = []
+  for eqn in jaxpr.eqns:
+    subs = [v for v in eqn.params.values() if isinstance(v, (jax.extend.core.ClosedJaxpr,
+                                                              jax.extend.core.Jaxpr))]
+    for sub in subs:
+      out += _primitives(getattr(sub, "jaxpr", sub))
+    if not subs:
+      out.append(eqn.primitive.name)
+  return out
+
+
+@pytest.mark.parametrize("nested", [False, True])
+def test_batched_take_is_one_gather_without_index_fixups(nested):
+  """Under vmap `take` is one flat gather plus the per-world offsets: no clamping or
+  wrapping of the indices (in range by contract), which would add elementwise work to
+  every hop's gather and to the compiled program (`benchmarks/compile_time.py`)."""
+  fn = jax.vmap(jax.vmap(take)) if nested else jax.vmap(take)
+  args = (TABLE, IDX) if nested else (TABLE[0], IDX[0])
+  prims = _primitives(jax.make_jaxpr(fn)(*args).jaxpr)
+  assert prims.count("gather") == 1, prims
+  assert not {"select_n", "lt", "clamp", "min", "max", "rem"} & set(prims), prims
+  assert set(prims) <= {"gather", "iota", "mul", "add", "reshape", "broadcast_in_dim"}, prims
