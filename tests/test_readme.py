@@ -33,3 +33,12 @@ def test_python_blocks_run(page, capsys):
   if page.name in ("README.md", "index.md"):
     assert blocks
     assert "-0.2" in out  # The player backs off by the overlap.
+
+
+def test_readme_two_box_task_is_the_rl_page_s():
+  """The README's two-box task is docs/rl.md's, which tests/test_env.py holds to
+  examples/two_box_task.py (so the README shows the task examples/ppo.py trains)."""
+  def task(path):
+    return [b for b in _python_blocks(path) if 'name="two_box"' in b]
+  assert task(ROOT / "README.md") == task(ROOT / "docs" / "rl.md")
+  assert len(task(ROOT / "README.md")) == 1
