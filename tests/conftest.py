@@ -62,14 +62,14 @@ def pytest_cmdline_main(config):
     config.option.loadscopereorder = False  # Keep HEAVY_FIRST's order (not by test count).
 
 
-# The modules that take longest (CPU time of a serial run), longest first. loadfile hands
+# The modules that take longest (summed test durations, 2026-12-02), longest first. loadfile hands
 # whole modules to the workers in collection order, so starting the long ones first
 # leaves no worker alone with one at the end. Only the order changes; a module not
 # listed keeps its place after these.
-HEAVY_FIRST = ("test_benchmarks.py", "test_stepping.py", "test_gradients.py",
-               "test_dynamics.py", "test_sharding.py", "test_readme.py", "test_flags.py",
-               "test_stability.py", "test_golden.py", "test_env.py", "test_cli.py",
-               "test_links.py")
+HEAVY_FIRST = ("test_dynamics.py", "test_benchmarks.py", "test_stepping.py", "test_cli.py",
+               "test_readme.py", "test_flags.py", "test_broadphase.py", "test_sharding.py",
+               "test_gradients.py", "test_bridges.py", "test_env.py", "test_stability.py",
+               "test_friction_links.py")
 
 
 def pytest_collection_modifyitems(config, items):
