@@ -330,7 +330,7 @@ def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | No
       static argument (hashed by identity), so define it once rather than as a new
       `lambda` per call (each new function compiles again). To differentiate with
       respect to a policy's parameters, close over them inside the function you
-      differentiate (see the README, "Closed-loop rollouts").
+      differentiate (see docs/toolkit.md, "Closed-loop rollouts").
     record: which extra per-step outputs the trajectory keeps, of
       `("status", "touching", "crushed", "sensed")` (static; default none, to keep
       memory small).
