@@ -243,6 +243,25 @@ def _host_info(info: dict) -> dict:
   return {k: np.asarray(v) for k, v in info.items()}
 
 
+def _reset_key(env, seed: int | None) -> jax.Array:
+  """The key a Gymnasium `reset` uses: from `seed`, else split from the env's own key
+  (after a first reset), else from the env's `np_random` (seeded by Gymnasium)."""
+  if seed is None and env._key is not None:
+    env._key, key = jax.random.split(env._key)
+  else:
+    env._key, key = jax.random.split(jax.random.key(
+        seed if seed is not None else int(env.np_random.integers(2**31))))
+  return key
+
+
+def _step_key(env) -> jax.Array:
+  """The key a Gymnasium `step` uses, split from the env's key; raises before a reset."""
+  if env._state is None:
+    raise RuntimeError("step before reset: call reset() first")
+  env._key, key = jax.random.split(env._key)
+  return key
+
+
 @functools.cache
 def _gymnasium_classes():
   try:
@@ -285,20 +304,12 @@ def _gymnasium_classes():
     def reset(self, *, seed: int | None = None, options: dict | None = None):
       super().reset(seed=seed)
       del options
-      if seed is None and self._key is not None:
-        self._key, key = jax.random.split(self._key)
-      else:
-        self._key, key = jax.random.split(jax.random.key(
-            seed if seed is not None else int(self.np_random.integers(2**31))))
-      obs, self._state = self._reset(key, self.params)
+      obs, self._state = self._reset(_reset_key(self, seed), self.params)
       return np.asarray(obs), {}
 
     def step(self, action):
-      if self._state is None:
-        raise RuntimeError("step before reset: call reset() first")
-      self._key, key = jax.random.split(self._key)
       obs, self._state, reward, _, info = self._step(
-          key, self._state, _as_action(self._space, action, ()), self.params)
+          _step_key(self), self._state, _as_action(self._space, action, ()), self.params)
       info = _host_info(info)
       return (np.asarray(obs), float(reward), bool(info.pop("terminated")),
               bool(info.pop("truncated")), info)
@@ -365,20 +376,12 @@ def _gymnasium_classes():
     def reset(self, *, seed: int | None = None, options: dict | None = None):
       super().reset(seed=seed)
       del options
-      if seed is None and self._key is not None:
-        self._key, key = jax.random.split(self._key)
-      else:
-        self._key, key = jax.random.split(jax.random.key(
-            seed if seed is not None else int(self.np_random.integers(2**31))))
-      obs, self._state = self._reset(key, self.params)
+      obs, self._state = self._reset(_reset_key(self, seed), self.params)
       return np.asarray(obs), {}
 
     def step(self, actions):
-      if self._state is None:
-        raise RuntimeError("step before reset: call reset() first")
-      self._key, key = jax.random.split(self._key)
       obs, self._state, reward, done, info = self._step(
-          key, self._state, _as_action(self._space, actions, (self.num_envs,)), self.params)
+          _step_key(self), self._state, _as_action(self._space, actions, (self.num_envs,)), self.params)
       info = _host_info(info)
       done = np.asarray(done)
       terminated, truncated = info.pop("terminated"), info.pop("truncated")
