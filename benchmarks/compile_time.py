@@ -208,7 +208,7 @@ SCOPED = {
     "stepping": ("_passes", "_sensed", "_finite_code", "_switched_off", "_too_fast"),
     "broadphase": ("candidates",),
     "flags": ("admit", "sensed", "touching"),
-    "geometry": ("contacts", "link_table", "_first_set"),
+    "geometry": ("contacts", "link_table", "first_set"),
     "chain": ("displacement", "backing", "_link_impulses", "energy_scale", "repeat"),
     "velocity": ("friction", "crush"),
 }

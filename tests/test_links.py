@@ -19,7 +19,7 @@ FULL = jc.Config(gravity=False, depth=6, iterations=2)
 COMPACT = {"dense": FULL.replace(links=4),
            "grid": FULL.replace(links=4, broadphase="grid", grid=SPEC)}
 
-first_set = jax.jit(geometry._first_set, static_argnames="limit")
+first_set = jax.jit(geometry.first_set, static_argnames="limit")
 measure = jax.jit(jax.vmap(lambda w: sizing.measure(
     w.pos, w.half, w.active, w.movable, spec=None, skin=1e-4, max_hops=N)[1]))
 
@@ -43,7 +43,7 @@ def test_first_set_under_jit_and_vmap_matches_one_world_at_a_time():
   # The packing is a matrix product followed by elementwise peels: the pattern jax 0.10.2
   # miscompiles on CPU under vmap (jax-ml/jax#39103); batched must equal unbatched.
   sel = jnp.asarray(np.random.default_rng(0).random((16, 4, 12, 30)) < 0.2)
-  batched = jax.jit(jax.vmap(lambda s: geometry._first_set(s, 3)))(sel)
+  batched = jax.jit(jax.vmap(lambda s: geometry.first_set(s, 3)))(sel)
   for b in range(sel.shape[0]):
     for got, want in zip(batched, first_set(sel[b], limit=3)):
       np.testing.assert_array_equal(got[b], want)

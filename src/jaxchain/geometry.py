@@ -9,7 +9,6 @@ Directions are numbered `0: +x, 1: -x, 2: +y, 3: -y`; `d ^ 1` is the opposite.
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import jax
 import jax.numpy as jnp
@@ -21,7 +20,7 @@ from jaxchain.gather import take
 DIRECTIONS = ("+x", "-x", "+y", "-y")
 NUM_DIRECTIONS = 4
 OPPOSITE = np.array([1, 0, 3, 2])  # d -> d ^ 1, as a static index.
-_WORD_BITS = 24  # Bits packed per word in `_first_set`.
+_WORD_BITS = 24  # Bits packed per word in `first_set`.
 # `Links.reduce` unrolls its slots up to this many; longer rows reduce along the slot
 # axis. 0: every table reduces along the slot axis, one gather for all its slots
 # (benchmarks/compile_time.py, same bits: the demo compiles in 0.84x and runs in 0.94x,
@@ -535,19 +534,25 @@ def link_table(c: Contacts, cand: Candidates, limit: int | None,
       return Links(idx, jnp.moveaxis(sel, -1, 0), overlap, cand), jnp.zeros((), bool)
     overlap = jnp.broadcast_to(c.overlap.T[:, None, :], (m, NUM_DIRECTIONS, n))
     return Links(None, jnp.moveaxis(sel, -1, 0), overlap, cand), jnp.zeros((), bool)
-  slot, mask, overflow = _first_set(sel, limit)  # [limit, 4, n]
+  slot, mask, overflow = first_set(sel, limit)  # [limit, 4, n]
   entry = slot + m * jnp.arange(n, dtype=slot.dtype)[None, None]  # Into the flat [n, m] tables.
   partner = slot if cand.idx is None else take(cand.idx.reshape(-1), entry)
   overlap = take(c.overlap.reshape(-1), entry)
   return Links(partner, mask, overlap, cand), overflow
 
 
-def _first_set(sel: jax.Array, limit: int) -> tuple[jax.Array, jax.Array, jax.Array]:
-  """Positions of the first `limit` set entries along the last axis of `sel`.
+def first_set(sel: jax.Array, limit: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+  """Positions of the first `limit` set entries along the last axis of `sel` (`[..., m]`).
 
-  Packs each row into words of 24 bits and peels the lowest set bit `limit` times, each peel a few elementwise
-  operations per word (no `argmax`, a variadic reduction XLA:CPU runs slowly), so the
-  cost is `O(m + limit * m / 24)` per row rather than a sort.
+  Packs each row into words of 24 bits with one float32 matrix product (sums of
+  distinct powers of two below 2^24 are exact; XLA:CPU runs it several times faster
+  than the same sum as a reduction), then peels the lowest set bit `limit` times in a
+  `lax.scan`, each peel a few elementwise operations per word (no `argmax`, a variadic
+  reduction XLA:CPU runs slowly), so the cost is `O(m + limit * m / 24)` per row rather
+  than a sort. The scan keeps each peel's words in memory: unrolled, XLA fuses every
+  slot's chain of peels into the slot's output and recomputes slot k's k peels there
+  (quadratic in `limit`: measured 1.3x at 8 slots, 3.3x at 16; the same at 4). Used by
+  the link table and by the neighbour table (`broadphase.build`).
 
   Returns:
     `(slot, valid, overflow)`: `[limit, ...]` int32 positions (0 where not valid),
@@ -559,21 +564,19 @@ def _first_set(sel: jax.Array, limit: int) -> tuple[jax.Array, jax.Array, jax.Ar
   k = np.arange(m)
   powers = np.zeros((m, num_words), np.float32)
   powers[k, k // _WORD_BITS] = 2.0 ** (k % _WORD_BITS)
-  # A float32 matrix product (sums of distinct powers of two below 2^24 are exact):
-  # XLA:CPU runs it several times faster than the same sum as a reduction.
   packed = jnp.dot(sel.astype(jnp.float32), powers, precision=lax.Precision.HIGHEST)
-  packed = packed.astype(jnp.uint32)
-  words = [packed[..., w] for w in range(num_words)]
+  words = jnp.moveaxis(packed.astype(jnp.uint32), -1, 0)  # [num_words, ...]
   none = jnp.int32(num_words * _WORD_BITS)  # Above every position: "no bit left".
-  slots, valids = [], []
-  for _ in range(limit):
-    lowest = [x & (~x + jnp.uint32(1)) for x in words]
-    at = [jnp.where(x != 0, _WORD_BITS * w + 31 - lax.clz(low).astype(jnp.int32), none)
-          for w, (x, low) in enumerate(zip(words, lowest))]
-    first = functools.reduce(jnp.minimum, at)
-    words = [jnp.where(a == first, x ^ low, x) for x, low, a in zip(words, lowest, at)]
+  base = (_WORD_BITS * jnp.arange(num_words, dtype=jnp.int32)).reshape(
+      (num_words,) + (1,) * (words.ndim - 1))
+
+  def peel(x, _):
+    low = x & (~x + jnp.uint32(1))
+    at = jnp.where(x != 0, base + 31 - lax.clz(low).astype(jnp.int32), none)
+    first = jnp.min(at, axis=0)
+    x = jnp.where(at == first[None], x ^ low, x)
     valid = first < none
-    slots.append(jnp.where(valid, first, 0))
-    valids.append(valid)
-  left = functools.reduce(jnp.logical_or, [x != 0 for x in words])
-  return jnp.stack(slots), jnp.stack(valids), jnp.any(left)
+    return x, (jnp.where(valid, first, 0), valid)
+
+  words, (slot, valid) = lax.scan(peel, words, None, length=limit)
+  return slot, valid, jnp.any(words != 0)
