@@ -70,9 +70,28 @@ def _make(env, params, kwargs):
   return env, (env.default_params if params is None else params)
 
 
-def _missing(package: str, error: ImportError) -> ImportError:
-  return ImportError(f"jaxchain.bridges needs {package}: pip install \"jaxchain[rl]\" "
-                     f"({error})")
+# Distributions of modules whose pip name differs from their import name.
+_DISTRIBUTIONS = {"absl": "absl-py", "yaml": "pyyaml", "stable_baselines3": "stable-baselines3"}
+
+
+def _missing(package: str, error: ImportError, extra: str = "rl") -> ImportError:
+  """The ImportError to raise when importing `package` failed with `error`.
+
+  It names the module that is really missing (`error.name`): `package` itself (not
+  installed: install the extra), or a module that `package` imports (installed, but
+  a dependency it needs is not: install that one)."""
+  missing = getattr(error, "name", None)
+  top = (missing or "").split(".")[0]
+  if top == package.split(".")[0]:
+    return ImportError(f"jaxchain.bridges needs {package}, which is not installed: "
+                       f"pip install \"jaxchain[{extra}]\"")
+  if missing:
+    dist = _DISTRIBUTIONS.get(top, top)
+    return ImportError(f"jaxchain.bridges: {package} is installed but importing it failed: "
+                       f"it imports the module {missing!r}, which is not installed ({error}). "
+                       f"pip install {dist}")
+  return ImportError(f"jaxchain.bridges: importing {package} failed: {error} (a version that "
+                     f"does not match? pip install -U \"jaxchain[{extra}]\")")
 
 
 # gymnax.
@@ -106,7 +125,7 @@ def _gymnax_class():
   try:
     from gymnax.environments import environment, spaces
   except ImportError as e:
-    raise _missing("gymnax", e) from None
+    raise _missing("gymnax", e) from e
 
   class GymnaxEnv(environment.Environment):
     """A jaxchain env under gymnax's `Environment` interface.
@@ -208,7 +227,7 @@ def register_gymnax() -> list[str]:
   try:
     import gymnax
   except ImportError as e:
-    raise _missing("gymnax", e) from None
+    raise _missing("gymnax", e) from e
   cls = _gymnax_class()
   for task, env_id in GYMNAX_IDS.items():
     if task in env_lib.TASKS and env_id not in gymnax.registered_envs:
@@ -269,7 +288,7 @@ def _gymnasium_classes():
     from gymnasium.vector import AutoresetMode, VectorEnv
     from gymnasium.vector.utils import batch_space
   except ImportError as e:
-    raise _missing("gymnasium", e) from None
+    raise _missing("gymnasium", e) from e
 
   class GymnasiumEnv(gymnasium.Env):
     """One jaxchain world as a `gymnasium.Env` (NumPy in and out, no auto-reset).
@@ -423,7 +442,7 @@ def register_gymnasium() -> list[str]:
   try:
     import gymnasium
   except ImportError as e:
-    raise _missing("gymnasium", e) from None
+    raise _missing("gymnasium", e) from e
   ids = []
   for task, env_id in GYMNASIUM_IDS.items():
     if task not in env_lib.TASKS:
