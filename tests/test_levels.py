@@ -332,7 +332,7 @@ def test_tiled_tile_properties_are_found_through_flip_bits():
               {"id": 1, "type": "spike", "properties": [
                   {"name": "sensor", "type": "bool", "value": True},
                   {"name": "mask", "type": "string", "value": "player|box"}]}]}],
-          "layers": [{"type": "tilelayer", "name": "hazards",
+          "layers": [{"type": "tilelayer", "name": "hazards", "properties": {"solid": True},
                       "data": [6 | 0x80000000, 6 | 0x20000000, 5]}]}
   lv = levels.load_tiled(data)
   assert dict(lv.tags) == {"hazards": (0, 1), "spike": (0,)}
@@ -347,7 +347,8 @@ def _map(objects=None, layer=None, **top):
           "tileheight": 16, "tilesets": [], "layers": []}
   if layer is not None:
     data["layers"].append({"type": "tilelayer", "name": "ground", "id": 1, "width": 2,
-                           "height": 2, "data": [0, 0, 1, 1], **layer})
+                           "height": 2, "data": [0, 0, 1, 1],
+                           "properties": [{"name": "solid", "value": True}], **layer})
   if objects is not None:
     data["layers"].append({"type": "objectgroup", "name": "things", "id": 2, "objects": objects})
   data.update(top)
@@ -405,12 +406,15 @@ def test_tiled_fixtures_with_unsupported_or_malformed_input(path, match):
     (_map([_obj({"vy": "up"})]), r"property 'vy': expected a finite number"),
     (_map([_obj({"mass": -1})]), r"property 'mass': expected a number > 0"),
     (_map([_obj({"tag": 3})]), r"property 'tag': expected a string"),
-    (_map([_obj(ellipse=True)]), r"object 3 'crate': ellipse objects are not supported"),
-    (_map([_obj(point=True, width=0, height=0)]), r"point objects are not supported"),
+    (_map([_obj(polyline=[{"x": 0, "y": 0}])]), r"object 3 'crate': polyline objects are not "
+                                                r"supported"),
+    (_map([_obj(text={"text": "hi"})]), r"text objects are not supported"),
     (_map([_obj(polygon=[{"x": 0, "y": 0}])]), r"polygon objects are not supported"),
-    (_map([_obj(rotation=45)]), r"object 3 'crate': rotation 45 is not supported"),
+    (_map([_obj(rotation=45)]), r"object 3 'crate': rotation 45 is not supported: .* multiples "
+                                r"of 90"),
     (_map([_obj(width=0)]), r"object 3 'crate': size 0x16"),
-    (_map([_obj(template="crate.tx")]), r"template objects are not supported"),
+    (_map([_obj(template="crate.tx")]), r"object 3 'crate': template 'crate.tx' cannot be found "
+                                        r"without the map's directory"),
     (_map(layer={"data": [1, 1, 1]}), r"layer 'ground': tile data has 3 tiles, expected 2x2 = 4"),
     (_map(layer={"data": [1, 1, 1, -1]}), r"layer 'ground': tile data holds a GID outside"),
     (_map(layer={"data": [1, 1, 1, 1.5]}), r"layer 'ground': tile data must be an array"),
@@ -545,8 +549,14 @@ def test_load_picks_the_format_by_extension(tmp_path):
   with pytest.raises(ValueError, match=r"c.txt: line 3 is ragged"):
     levels.load(tmp_path / "c.txt")
   (tmp_path / "d.tmx").write_text("<map/>")
-  with pytest.raises(ValueError, match=r"d.tmx: unsupported level file extension '.tmx' \(TMX"):
+  with pytest.raises(ValueError, match=r"d.tmx: 'width' must be an int >= 1, got None"):
     levels.load(tmp_path / "d.tmx")
+  (tmp_path / "d2.tmx").write_text("<map")
+  with pytest.raises(ValueError, match=r"d2.tmx: not valid XML"):
+    levels.load(tmp_path / "d2.tmx")
+  (tmp_path / "d3.png").write_text("")
+  with pytest.raises(ValueError, match=r"d3.png: unsupported level file extension '.png'"):
+    levels.load(tmp_path / "d3.png")
   (tmp_path / "e.tmj").write_text("{not json")
   with pytest.raises(ValueError, match=r"e.tmj: not valid JSON"):
     levels.load(tmp_path / "e.tmj")

@@ -30,12 +30,15 @@ from __future__ import annotations
 import base64
 import binascii
 import dataclasses
+import difflib
 import gzip
 import importlib.resources
 import json
 import math
+import os
 import pathlib
 import types
+import warnings
 import xml.etree.ElementTree as ElementTree
 import zlib
 from collections.abc import Mapping
@@ -65,6 +68,9 @@ _U32 = 1 << 32
 # `$`. Other objects without `mass` are immovable.
 DEFAULT_MASS = 1.0
 _MOVABLE_TAGS = ("player", "box")
+# Half-extents (world units) of the small sensor a Tiled point object becomes (one not
+# tagged "player" or "box": those are spawns, bodies of the ASCII `@` and `$` sizes).
+POINT_HALF = 0.05
 _F32_MAX = float(np.finfo(np.float32).max)
 
 
@@ -540,7 +546,20 @@ def _number(value, what: str = "") -> float:
   return float(value)
 
 
+def _numeric(value):
+  """A property's number: an int or float, or a string holding one (TMX, and JSON
+  written before Tiled 1.2, store untyped properties as strings: "1.00")."""
+  if isinstance(value, str):
+    try:
+      return float(value.strip())
+    except ValueError:
+      return value
+  return value
+
+
 def _prop_bool(value):
+  if isinstance(value, str) and value.strip().lower() in ("true", "false"):
+    return value.strip().lower() == "true"
   if not isinstance(value, bool):
     raise ValueError(f"expected a bool property (true or false), got {value!r}")
   return value
@@ -549,13 +568,14 @@ def _prop_bool(value):
 def _prop_mass(value):
   if isinstance(value, str) and value.strip().lower() in ("inf", "infinity"):
     return math.inf
+  value = _numeric(value)
   if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
     raise ValueError(f"expected a number > 0, or 'inf' for immovable, got {value!r}")
   return float(value)
 
 
 def _prop_friction(value):
-  value = _number(value)
+  value = _number(_numeric(value))
   if value < 0:
     raise ValueError(f"expected a number >= 0, got {value!r}")
   return value
@@ -593,7 +613,7 @@ def _prop_vector(value):
 
 
 def _prop_component(value):
-  return _number(value)
+  return _number(_numeric(value))
 
 
 def _prop_tags(value):
@@ -603,7 +623,7 @@ def _prop_tags(value):
 
 
 def _prop_unit(value):
-  value = _number(value)
+  value = _number(_numeric(value))
   if not value > 0:
     raise ValueError(f"expected pixels per world unit > 0, got {value!r}")
   return value
@@ -638,6 +658,10 @@ def _properties(raw, where: _Where, known=_PROPERTIES) -> dict:
     if not isinstance(key, str):
       raise where.error(f"property {k}: a property name must be a string, got {key!r}")
     if key not in known:
+      near = difflib.get_close_matches(key, list(known), n=1, cutoff=0.8)
+      if near:
+        warnings.warn(f"{where}: property {key!r} is not one jaxchain reads (ignored); did you "
+                      f"mean {near[0]!r}?", UserWarning, stacklevel=2)
       continue
     try:
       out[key] = known[key](value)
@@ -846,31 +870,57 @@ class _Units:
 
 
 def _spec(props: dict, tags: tuple[str, ...]) -> tuple:
-  """The hashable body spec of resolved properties (what makes tiles merge)."""
+  """The hashable body spec of resolved properties (what makes tiles merge). The
+  default category: `SENSOR` for a sensor, else `PLAYER` for a body tagged "player"
+  (named, classed or typed so), `BOX` for one tagged "box", else `SOLID`."""
+  tags = tuple(dict.fromkeys(tags + props.get("tag", ())))
   sensor = props.get("sensor", False)
+  default = (SENSOR if sensor else PLAYER if "player" in tags else BOX if "box" in tags
+             else SOLID)
   return (props.get("one_way", False), sensor, props.get("friction", 0.0),
-          props.get("category", SENSOR if sensor else SOLID), props.get("mask", ALL),
-          tuple(dict.fromkeys(tags + props.get("tag", ()))))
+          props.get("category", default), props.get("mask", ALL), tags)
+
+
+@dataclasses.dataclass
+class _Context:
+  """What the layer walk of one Tiled map shares."""
+
+  where: _Where
+  grid: tuple[int, int, int, int]
+  units: _Units
+  tiles: dict
+  base: object
+  firstgids: dict  # normalised external tileset path -> firstgid
+  bodies: list = dataclasses.field(default_factory=list)
+  decorative: list = dataclasses.field(default_factory=list)  # tile layers with no solid tile
+  solid_seen: bool = False  # some layer, group or tile has a `solid` property
 
 
 def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
                source: str | None = None) -> Level:
-  """Reads a Tiled JSON map (already parsed with `json.load`); see `load`.
+  """Reads a Tiled map: its JSON object (`json.load`), or a TMX map turned into the
+  same structure by `tmx_to_json`; see `load` for the rules.
 
   Args:
     data: the map's JSON object.
     name: the level's name.
     base: directory (a `pathlib.Path` or `importlib.resources` traversable) that
-      external tilesets are relative to.
+      external tilesets and object templates are relative to.
     gravity: the level's gravity; default the map property `gravity` ("gx,gy"),
       else `(0, -9.81)`.
     source: what errors call the map (default `name`, or "<tiled>").
+
+  Warns:
+    UserWarning: when tile layers hold tiles but no layer, group or tile of the map
+      has a `solid` property (a map written for the old rule, under which every
+      tile layer was solid: see the migration note in `load`).
 
   Examples:
     >>> from jaxchain import levels
     >>> m = {"orientation": "orthogonal", "width": 3, "height": 2, "tilewidth": 16,
     ...      "tileheight": 16, "tilesets": [], "layers": [
-    ...          {"type": "tilelayer", "name": "ground", "data": [0, 0, 0, 1, 1, 1]}]}
+    ...          {"type": "tilelayer", "name": "ground", "data": [0, 0, 0, 1, 1, 1],
+    ...           "properties": [{"name": "solid", "type": "bool", "value": True}]}]}
     >>> lv = levels.load_tiled(m)
     >>> lv.pos.tolist(), lv.half.tolist(), lv.tags["ground"]
     ([[1.5, 0.5]], [[1.5, 0.5]], (0,))
@@ -880,7 +930,9 @@ def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
     raise where.error(f"a Tiled map is a JSON object, got {type(data).__name__}")
   orientation = data.get("orientation", "orthogonal")
   if orientation != "orthogonal":
-    raise where.error(f"orientation {orientation!r} is not supported (only orthogonal maps)")
+    raise where.error(f"orientation {orientation!r} is not supported: jaxchain reads orthogonal "
+                      f"maps only (isometric, staggered and hexagonal maps have no axis-aligned "
+                      f"square cells)")
   if _flag(data.get("infinite", False), "infinite", where):
     raise where.error("infinite maps are not supported (their tile data is chunked); make the "
                       "map finite (map property Infinite off) and save it again")
@@ -892,26 +944,46 @@ def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
   units = _Units(unit or tw, unit or th, height * th)
   if gravity is None:
     gravity = map_props.get("gravity", (0.0, -9.81))
-  tiles = _tile_properties(data.get("tilesets", []), base, where)
-  bodies = []
+  tilesets = data.get("tilesets", [])
+  tiles = _tile_properties(tilesets, base, where)
+  firstgids = {}
+  if base is not None:
+    for ts in tilesets:
+      if isinstance(ts.get("source"), str) and isinstance(ts.get("firstgid"), int):
+        firstgids[_normpath(base.joinpath(ts["source"]))] = ts["firstgid"]
+  ctx = _Context(where, (width, height, tw, th), units, tiles, base, firstgids,
+                 solid_seen=any("solid" in props for props, _ in tiles.values()))
   layers = data.get("layers", [])
   if not isinstance(layers, list):
     raise where.error("'layers' must be an array")
-  _walk(layers, {}, (0.0, 0.0), "", where, (width, height, tw, th), units, tiles, bodies)
+  _walk(layers, {}, (0.0, 0.0), "", ctx)
+  if ctx.decorative and not ctx.solid_seen:
+    names_ = ", ".join(repr(n) for n in ctx.decorative)
+    warnings.warn(
+        f"{where}: tile layers are decorative unless marked solid, and no layer, group or tile "
+        f"of this map has a 'solid' property: tile layer(s) {names_} made no bodies. Give the "
+        f"layers (or tileset tiles) that should collide the bool property solid=true, and "
+        f"solid=false to the others to silence this warning", UserWarning, stacklevel=2)
   bounds = (0.0, 0.0, width * tw / units.ux, height * th / units.uy)
-  return _level(name, bodies, bounds, gravity)
+  return _level(name, ctx.bodies, bounds, gravity)
 
 
-def _walk(layers, inherited, offset, prefix, where, grid, units, tiles, bodies):
-  """Adds the bodies of `layers` (and of groups within them) to `bodies`."""
+def _normpath(path) -> str:
+  return os.path.normpath(str(path))
+
+
+def _walk(layers, inherited, offset, prefix, ctx: _Context):
+  """Adds the bodies of `layers` (and of groups within them) to `ctx.bodies`."""
+  where = ctx.where
   for k, layer in enumerate(layers):
     if not isinstance(layer, Mapping):
       raise where.error("a layer must be a JSON object")
     lname = prefix + _name(layer.get("name"), "name", _Where(where.source, f"layer {prefix}{k}"))
     lwhere = _Where(where.source, f"layer {lname!r}")
     own = _properties(layer.get("properties"), lwhere)
+    ctx.solid_seen |= "solid" in own
     props = {**inherited, **own}
-    if not props.get("solid", True):
+    if props.get("solid") is False:
       continue
     try:
       off = (offset[0] + _number(layer.get("offsetx", 0.0), "offsetx"),
@@ -920,35 +992,38 @@ def _walk(layers, inherited, offset, prefix, where, grid, units, tiles, bodies):
       raise lwhere.error(str(e)) from None
     kind = layer.get("type")
     if kind == "group":
-      _walk(_array(layer.get("layers"), "layers", lwhere), props, off, lname + "/", where, grid,
-            units, tiles, bodies)
+      _walk(_array(layer.get("layers"), "layers", lwhere), props, off, lname + "/", ctx)
     elif kind == "tilelayer":
       for key in _MOTION:
         if key in own:
           raise lwhere.error(f"property {key!r}: tile layers are immovable and static (give mass "
                              f"and velocity to objects)")
       props = {k: v for k, v in props.items() if k not in _MOTION}
-      _tile_layer(layer, props, off, lname, lwhere, grid, units, tiles, bodies)
+      _tile_layer(layer, props, off, lname, lwhere, ctx)
     elif kind == "objectgroup":
-      _object_layer(layer, props, off, lname, lwhere, units, tiles, bodies)
+      _object_layer(layer, props, off, lname, lwhere, ctx)
     elif kind != "imagelayer":
       raise lwhere.error(f"unknown layer type {kind!r}")
 
 
-def _tile_layer(layer, props, offset, lname, where, grid, units, tiles, bodies):
-  width, height, tw, th = grid
+def _tile_layer(layer, props, offset, lname, where, ctx: _Context):
+  """A tile layer's solid tiles, merged into rectangles. A tile is solid when its
+  resolved `solid` (the tile's own property over its layer's and groups') is true."""
+  width, height, tw, th = ctx.grid
   gids = _gids(layer, width, height, where)
   specs = {}  # spec -> bool grid of its cells
   layer_tags = (lname,) if lname else ()
   for gid in np.unique(gids[gids > 0]).tolist():
-    tile_props, tile_tags = tiles.get(gid, ({}, ()))
+    tile_props, tile_tags = ctx.tiles.get(gid, ({}, ()))
     resolved = {**props, **{k: v for k, v in tile_props.items() if k not in _MOTION}}
-    if not resolved.get("solid", True):
+    if not resolved.get("solid", False):
       continue
     spec = _spec(resolved, layer_tags + tile_tags)
     specs.setdefault(spec, np.zeros((height, width), bool))
     specs[spec] |= gids == gid
-  order = len(bodies)
+  if not specs and np.any(gids > 0):
+    ctx.decorative.append(lname)
+  order = len(ctx.bodies)
   for spec, cells in specs.items():
     one_way, sensor, friction, category, mask, tags = spec
     for r0, c0, r1, c1 in rectangles(cells, vertical=not one_way):
@@ -956,14 +1031,31 @@ def _tile_layer(layer, props, offset, lname, where, grid, units, tiles, bodies):
       y0, y1 = r0 * th + offset[1], (r1 + 1) * th + offset[1]
       if one_way:
         y1 = y0 + SLAB * th
-      pos, half = units.box(x0, y0, x1, y1)
+      pos, half = ctx.units.box(x0, y0, x1, y1)
       _check_box(pos, half, _Where(where.source, where.layer, f"tiles from row {r0}, column {c0}"),
                  f"{(c1 - c0 + 1) * tw}x{(r1 - r0 + 1) * th} px")
-      bodies.append(_Body((order, r0, c0), pos, half, math.inf, (0.0, 0.0), friction, one_way,
-                          sensor, category, mask, tags))
+      ctx.bodies.append(_Body((order, r0, c0), pos, half, math.inf, (0.0, 0.0), friction, one_way,
+                              sensor, category, mask, tags))
 
 
-def _object_layer(layer, props, offset, lname, where, units, tiles, bodies):
+# Tiled's rotation (degrees clockwise on screen, y down) of a multiple of 90 degrees:
+# (cos, sin), exact.
+_QUARTER_TURNS = ((1, 0), (0, 1), (-1, 0), (0, -1))
+
+
+def _rotated_bbox(x0, y0, x1, y1, rotation):
+  """The bounding box of the box [x0, x1] x [y0, y1] (pixels, y down, relative to an
+  object's origin) rotated by `rotation` degrees (a multiple of 90) clockwise on
+  screen about the origin: (dx, dy) -> (dx cos - dy sin, dx sin + dy cos)."""
+  c, s = _QUARTER_TURNS[round(rotation / 90) % 4]
+  xs, ys = [], []
+  for dx, dy in ((x0, y0), (x1, y0), (x1, y1), (x0, y1)):
+    xs.append(dx * c - dy * s)
+    ys.append(dx * s + dy * c)
+  return min(xs), min(ys), max(xs), max(ys)
+
+
+def _object_layer(layer, props, offset, lname, where, ctx: _Context):
   objects = layer.get("objects", [])
   if not isinstance(objects, list):
     raise where.error("'objects' must be an array")
@@ -974,49 +1066,273 @@ def _object_layer(layer, props, offset, lname, where, units, tiles, bodies):
                                                   f"object {obj.get('id', k)}"))
     owhere = _Where(where.source, where.layer,
                     f"object {obj.get('id', k)}" + (f" {oname!r}" if oname else ""))
-    for shape in ("ellipse", "point", "polygon", "polyline", "text"):
-      if shape in obj and obj[shape] is not False:
-        raise owhere.error(f"{shape} objects are not supported (only rectangles and tile objects "
-                           f"become bodies); move it to a layer with property solid=false")
     if "template" in obj:
-      raise owhere.error("template objects are not supported; detach the template in Tiled")
+      obj = _apply_template(obj, owhere, ctx)
+      oname = _name(obj.get("name"), "name", owhere)
+    for shape in ("polygon", "polyline", "text"):
+      if shape in obj and obj[shape] is not False:
+        raise owhere.error(f"{shape} objects are not supported (rectangles, ellipses, points and "
+                           f"tile objects become bodies); move it to a layer with property "
+                           f"solid=false")
+    point = bool(obj.get("point", False))
     try:
       x, y = _number(obj.get("x", 0.0), "x"), _number(obj.get("y", 0.0), "y")
       w, h = _number(obj.get("width", 0.0), "width"), _number(obj.get("height", 0.0), "height")
       rotation = _number(obj.get("rotation", 0.0), "rotation")
     except ValueError as e:
       raise owhere.error(str(e)) from None
-    if rotation % 360:
-      raise owhere.error(f"rotation {rotation:g} is not supported (boxes are axis-aligned)")
-    if not (w > 0 and h > 0):
+    if rotation % 90:
+      raise owhere.error(f"rotation {rotation:g} is not supported: boxes are axis-aligned, so only "
+                         f"multiples of 90 degrees are (rotate it by a right angle, or remove it)")
+    if not point and not (w > 0 and h > 0):
       raise owhere.error(f"size {w:g}x{h:g}: a body needs a width and height > 0")
     kind = _name(obj.get("class") or obj.get("type"), "class" if obj.get("class") else "type",
                  owhere)
     tags = tuple(t for t in (lname, oname, kind) if t)
     resolved = dict(props)
-    if "gid" in obj:  # A tile object: (x, y) is its bottom-left corner.
+    box = (0.0, 0.0, w, h)  # Relative to the origin (x, y), y down.
+    if "gid" in obj:  # A tile object: its origin (x, y) is its bottom-left corner.
       gid = _int_field(obj, "gid", owhere, minimum=0) & GID_MASK
-      tile_props, tile_tags = tiles.get(gid, ({}, ()))
+      tile_props, tile_tags = ctx.tiles.get(gid, ({}, ()))
       resolved.update(tile_props)
       tags += tile_tags
-      y -= h
+      box = (0.0, -h, w, 0.0)
     resolved.update(_properties(obj.get("properties"), owhere))
-    if not resolved.get("solid", True):
+    if resolved.get("solid") is False:
       continue
+    ox, oy = x + offset[0], y + offset[1]
+    if point:
+      spawn = next((t for t in _MOVABLE_TAGS if t in tags + resolved.get("tag", ())), None)
+      pos, _ = ctx.units.box(ox, oy, ox, oy)
+      if spawn is None:
+        resolved.setdefault("sensor", True)
+      half = {"player": PLAYER_TILE.half, "box": BOX_TILE.half}.get(spawn, (POINT_HALF, POINT_HALF))
+      size = "a point"
+    else:
+      bx0, by0, bx1, by1 = _rotated_bbox(*box, rotation)
+      pos, half = ctx.units.box(ox + bx0, oy + by0, ox + bx1, oy + by1)
+      size = f"{w:g}x{h:g} px"
+    _check_box(pos, half, owhere, size)
     vx, vy = resolved.get("velocity", (0.0, 0.0))
     vel = (resolved.get("vx", vx), resolved.get("vy", vy))
     one_way, sensor, friction, category, mask, tags = _spec(resolved, tags)
-    pos, half = units.box(x + offset[0], y + offset[1], x + w + offset[0], y + h + offset[1])
-    _check_box(pos, half, owhere, f"{w:g}x{h:g} px")
     movable = not sensor and any(t in tags for t in _MOVABLE_TAGS)
     mass = resolved.get("mass", DEFAULT_MASS if movable else math.inf)
-    bodies.append(_Body((len(bodies),), pos, half, mass, vel, friction, one_way, sensor, category,
-                        mask, tags))
+    ctx.bodies.append(_Body((len(ctx.bodies),), pos, half, mass, vel, friction, one_way, sensor,
+                            category, mask, tags))
+
+
+def _apply_template(obj, where: _Where, ctx: _Context) -> dict:
+  """An object instance of a template (`.tx` XML or `.tj` JSON) merged with it: the
+  instance's fields and properties over the template's; a template's tile (gid)
+  mapped into the map's tilesets."""
+  path = obj["template"]
+  if not isinstance(path, str):
+    raise where.error(f"'template' must be a file name, got {path!r}")
+  if ctx.base is None:
+    raise where.error(f"template {path!r} cannot be found without the map's directory")
+  file = ctx.base.joinpath(path)
+  try:
+    text = file.read_text(encoding="utf-8")
+  except OSError as e:
+    raise where.error(f"template {path!r} cannot be read ({e}); ship it beside the map, or "
+                      f"detach the template in Tiled") from None
+  try:
+    if path.endswith(".tx"):
+      root = ElementTree.fromstring(text)
+      element = root.find("object")
+      if element is None:
+        raise ValueError("it has no <object>")
+      template = _xml_object(element, where)
+      ts = root.find("tileset")
+      tileset = None if ts is None else {"firstgid": _xml_int(ts, "firstgid", where, 1),
+                                         "source": ts.get("source")}
+    else:
+      data = json.loads(text)
+      template, tileset = data["object"], data.get("tileset")
+  except (ElementTree.ParseError, json.JSONDecodeError, ValueError, KeyError, TypeError) as e:
+    raise where.error(f"template {path!r} is not a Tiled template ({e})") from None
+  merged = {**template, **{k: v for k, v in obj.items() if k not in ("template", "properties")}}
+  merged["properties"] = _property_list(template.get("properties")) + _property_list(
+      obj.get("properties"))
+  if "gid" in template and "gid" not in obj:
+    first = ctx.firstgids.get(_normpath(os.path.join(os.path.dirname(str(file)),
+                                                     str((tileset or {}).get("source")))))
+    if tileset is None or first is None:
+      raise where.error(f"template {path!r} uses a tile of a tileset the map does not hold "
+                        f"({(tileset or {}).get('source')!r}); add the tileset to the map")
+    gid = template["gid"]
+    merged["gid"] = (gid & FLIP_BITS) | (first + (gid & GID_MASK) - tileset["firstgid"])
+  return merged
+
+
+def _property_list(raw) -> list:
+  """Properties (the array form, or the old {name: value} form) as an array."""
+  if raw is None:
+    return []
+  if isinstance(raw, Mapping):
+    return [{"name": k, "value": v} for k, v in raw.items()]
+  return list(raw) if isinstance(raw, list) else [raw]
+
+
+# TMX (Tiled's XML format), read into the structure of its JSON format.
+
+
+def tmx_to_json(text: str, *, source: str = "<tmx>") -> dict:
+  """Parses a TMX map into the structure of Tiled's JSON format, for `load_tiled`.
+
+  Both formats share one code path: this only moves the XML's elements and
+  attributes into the JSON's fields (numbers typed, `<property>` values typed by
+  their `type`, CSV tile data as text, base64 data as its string with its
+  `compression`, `<ellipse/>` and `<point/>` as `"ellipse": true` and `"point":
+  true`, `<group>` layers nested). Images are never read.
+
+  Args:
+    text: the TMX text.
+    source: what errors call the map.
+
+  Raises:
+    ValueError: for text that is not XML or not a `<map>`, or a number attribute
+      that is not a number (naming the layer or object).
+
+  Examples:
+    >>> from jaxchain import levels
+    >>> m = levels.tmx_to_json('''<map orientation="orthogonal" width="2" height="1"
+    ...   tilewidth="8" tileheight="8"><layer name="g" width="2" height="1">
+    ...   <data encoding="csv">1,0</data></layer></map>''')
+    >>> m["width"], m["layers"][0]["type"], m["layers"][0]["data"]
+    (2, 'tilelayer', '1,0')
+  """
+  where = _Where(source)
+  try:
+    root = ElementTree.fromstring(text)
+  except ElementTree.ParseError as e:
+    raise where.error(f"not valid XML ({e})") from None
+  if root.tag != "map":
+    raise where.error(f"a TMX map's root element is <map>, got <{root.tag}>")
+  out = dict(root.attrib)
+  for key in ("width", "height", "tilewidth", "tileheight"):
+    if key in out:
+      out[key] = _xml_int(root, key, where)
+  out["properties"] = _xml_properties(root)
+  out["tilesets"] = [_xml_tileset(ts, where) for ts in root.findall("tileset")]
+  out["layers"] = _xml_layers(root, where)
+  return out
+
+
+def _xml_int(element, key: str, where: _Where, default=None) -> int:
+  value = element.get(key)
+  if value is None and default is not None:
+    return default
+  try:
+    return int(value)
+  except (TypeError, ValueError):
+    raise where.error(f"attribute {key!r} must be an integer, got {value!r}") from None
+
+
+def _xml_float(element, key: str, where: _Where) -> float:
+  value = element.get(key)
+  try:
+    return float(value)
+  except (TypeError, ValueError):
+    raise where.error(f"attribute {key!r} must be a number, got {value!r}") from None
+
+
+def _xml_properties(element):
+  props = element.find("properties")
+  if props is None:
+    return None
+  return [dict(name=p.get("name"), type=p.get("type", "string"), value=_xml_value(p))
+          for p in props.findall("property")]
+
+
+def _xml_tileset(ts, where: _Where) -> dict:
+  out = {"firstgid": _xml_int(ts, "firstgid", where, 1)}
+  if ts.get("source") is not None:
+    out["source"] = ts.get("source")
+    return out
+  out["name"] = ts.get("name", "")
+  tiles = []
+  for t in ts.findall("tile"):
+    tile = {"id": _xml_int(t, "id", _Where(where.source, f"tileset {out['name']!r}"))}
+    if t.get("class") or t.get("type"):
+      tile["class"] = t.get("class") or t.get("type")
+    tile["properties"] = _xml_properties(t)
+    tiles.append(tile)
+  out["tiles"] = tiles
+  return out
+
+
+_XML_LAYERS = {"layer": "tilelayer", "objectgroup": "objectgroup", "imagelayer": "imagelayer",
+               "group": "group"}
+
+
+def _xml_layers(parent, where: _Where) -> list:
+  layers = []
+  for child in parent:
+    if child.tag not in _XML_LAYERS:
+      continue
+    lwhere = _Where(where.source, f"layer {child.get('name', '')!r}")
+    layer = {"type": _XML_LAYERS[child.tag], "name": child.get("name", "")}
+    for key in ("offsetx", "offsety"):
+      if key in child.attrib:
+        layer[key] = _xml_float(child, key, lwhere)
+    layer["properties"] = _xml_properties(child)
+    if child.tag == "layer":
+      for key in ("width", "height"):
+        if key in child.attrib:
+          layer[key] = _xml_int(child, key, lwhere)
+      data = child.find("data")
+      if data is None:
+        raise lwhere.error("a tile layer needs a <data> element")
+      if data.find("chunk") is not None:
+        layer["chunks"] = True
+      encoding = data.get("encoding")
+      if encoding is None:  # The oldest TMX form: one <tile gid="..."/> per cell.
+        layer["data"] = [_xml_int(t, "gid", lwhere, 0) for t in data.findall("tile")]
+      else:
+        layer["encoding"] = encoding
+        layer["data"] = (data.text or "").strip()
+        if data.get("compression"):
+          layer["compression"] = data.get("compression")
+    elif child.tag == "objectgroup":
+      layer["objects"] = [_xml_object(o, lwhere) for o in child.findall("object")]
+    elif child.tag == "group":
+      layer["layers"] = _xml_layers(child, where)
+    layers.append(layer)
+  return layers
+
+
+def _xml_object(o, where: _Where) -> dict:
+  """One `<object>` as a JSON object (only the attributes it has)."""
+  owhere = _Where(where.source, where.layer, f"object {o.get('id', '?')}")
+  out = {}
+  for key in ("name", "type", "class", "template"):
+    if key in o.attrib:
+      out[key] = o.get(key)
+  for key in ("id", "gid"):
+    if key in o.attrib:
+      out[key] = _xml_int(o, key, owhere)
+  for key in ("x", "y", "width", "height", "rotation"):
+    if key in o.attrib:
+      out[key] = _xml_float(o, key, owhere)
+  for shape in ("ellipse", "point"):
+    if o.find(shape) is not None:
+      out[shape] = True
+  for shape in ("polygon", "polyline"):
+    if o.find(shape) is not None:
+      out[shape] = o.find(shape).get("points", "")
+  if o.find("text") is not None:
+    out["text"] = o.find("text").text or ""
+  props = _xml_properties(o)
+  if props is not None:
+    out["properties"] = props
+  return out
 
 
 # Files and shipped levels.
 
-_SUFFIXES = {".txt": "ascii", ".xsb": "xsb", ".tmj": "tiled", ".json": "tiled"}
+_SUFFIXES = {".txt": "ascii", ".xsb": "xsb", ".tmj": "tiled", ".json": "tiled", ".tmx": "tmx"}
 
 
 def _shipped():
@@ -1042,21 +1358,46 @@ def load(path, legend=None, *, strict: bool = False, gravity=None) -> Level:
     - `.xsb`: Sokoban XSB text (`parse_ascii`), gravity `(0, 0)` by default
       (Sokoban is seen from above).
     - `.txt`: ASCII map (`parse_ascii`), gravity `(0, -9.81)` by default.
-    - `.tmj`, `.json`: Tiled JSON map: orthogonal and finite. Tile layers (CSV, or
-      base64 uncompressed, zlib or gzip; flip bits of the GIDs are masked off)
-      become immovable bodies, their tiles merged into rectangles; object layers'
-      rectangles and tile objects become bodies. Properties (on layers, group
-      layers, tiles of a tileset and objects; later ones override) say what:
-      `solid` (bool, default true; false skips a layer, tile or object), `one_way`
+    - `.tmj`, `.json`: Tiled JSON map; `.tmx`: Tiled XML map (read by `tmx_to_json`
+      into the JSON's structure, then the same code path). Orthogonal and finite
+      only (isometric, staggered and hexagonal maps are an error naming the
+      orientation). Tile data: CSV, or base64 uncompressed, zlib or gzip (TMX also
+      `<tile gid>` elements); flip bits of the GIDs are masked off. External
+      tilesets (`.tsx`, `.tsj`) and object templates (`.tx`, `.tj`) are read from
+      beside the map; images never are.
+      **Tile layers are decorative unless marked solid**: a tile makes a body only
+      when the bool property `solid` is true on the tile (in its tileset) or, when
+      the tile does not say, on its layer or a group around it; the tiles of one
+      layer with the same properties merge into rectangles. (Migration: before this
+      rule every tile layer was solid. A map whose tile layers hold tiles while no
+      layer, group or tile has a `solid` property loads with a `UserWarning` naming
+      the layers; give the colliding layers `solid: true`.)
+      Objects are bodies unless `solid` is false: rectangles and tile objects (their
+      box), ellipses (their bounding box), rotated by Tiled's `rotation` when it is
+      a multiple of 90 degrees (Tiled turns an object clockwise on screen about its
+      origin: the top-left corner of a rectangle or ellipse, the bottom-left corner
+      of a tile object; the body is the turned box); any other rotation is an
+      error. A point object is a spawn when tagged "player" or "box" (a body of the
+      ASCII `@` or `$` size, half 0.4 or 0.45 world units, centred on the point),
+      else a trigger: a sensor of half `POINT_HALF` (0.05 world units) centred on
+      it. Polygons, polylines and text are errors.
+      Properties (on layers, group layers, tiles of a tileset, templates and
+      objects; later ones override) say what: `solid` (bool; see above; false skips
+      a layer, group, tile or object), `one_way`
       (bool; a slab `SLAB` of a tile thick at its top on tile layers), `sensor`
       (bool), `friction` (float >= 0), `category` and `mask` (int in [0, 2**32), or
-      names like "player|box" from `CATEGORIES`; default `SOLID` (`SENSOR` for
-      sensors) and all bits), `mass` (objects only: float > 0 or "inf"; absent means
+      names like "player|box" from `CATEGORIES`; default `SENSOR` for sensors,
+      `PLAYER` for a body tagged "player" (an object named, classed or typed
+      "player"), `BOX` for one tagged "box", else `SOLID`; mask all bits), `mass`
+      (objects only: float > 0 or "inf"; absent means
       `DEFAULT_MASS` (1.0) for an object tagged "player" or "box" that is not a
-      sensor, like the ASCII `@` and `$`, and immovable for any other), `velocity` ("vx,vy" string) or `vx`/`vy` (floats; objects only,
-      world units per second, y up), `tag` (comma-separated extra tags). A tile's
-      mass and velocity apply to tile objects; tile layers are immovable and static
-      (mass or velocity on a tile layer itself is an error). Tags: the
+      sensor, like the ASCII `@` and `$`, and immovable for any other), `velocity`
+      ("vx,vy" string) or `vx`/`vy` (floats; objects only,
+      world units per second, y up), `tag` (comma-separated extra tags). Numbers
+      and bools may be strings ("1.00", "true"), as TMX and old JSON write untyped
+      properties. An unknown property close to a known name (`oneway`) warns. A
+      tile's mass and velocity apply to tile objects; tile layers are immovable and
+      static (mass or velocity on a tile layer itself is an error). Tags: the
       layer's name (group layers as "group/layer"), the object's name and
       class (or type), and the tile's class, always strings (an integer name, as
       scripts write, is read as its decimal string; any other non-string is an
@@ -1097,8 +1438,7 @@ def load(path, legend=None, *, strict: bool = False, gravity=None) -> Level:
     file = shipped[path]
   suffix = "." + file.name.rsplit(".", 1)[-1].lower() if "." in file.name else ""
   if suffix not in _SUFFIXES:
-    hint = " (TMX is Tiled's XML format: export the map as JSON, .tmj)" if suffix == ".tmx" else ""
-    raise ValueError(f"{file.name}: unsupported level file extension {suffix!r}{hint}; expected "
+    raise ValueError(f"{file.name}: unsupported level file extension {suffix!r}; expected "
                      f"one of {', '.join(_SUFFIXES)}")
   try:
     text = file.read_text(encoding="utf-8")
@@ -1107,6 +1447,9 @@ def load(path, legend=None, *, strict: bool = False, gravity=None) -> Level:
                             f"{', '.join(names())})") from None
   stem = file.name.rsplit(".", 1)[0]
   kind = _SUFFIXES[suffix]
+  if kind == "tmx":
+    data = tmx_to_json(text, source=file.name)
+    return load_tiled(data, name=stem, base=_parent(file), gravity=gravity, source=file.name)
   if kind == "tiled":
     try:
       data = json.loads(text)
