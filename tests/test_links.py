@@ -66,7 +66,7 @@ def test_compact_links_resolve_like_the_full_table(broadphase_name, seed):
 def test_compact_rollout_with_gravity_and_friction_matches_the_full_table():
   world = scenes.platformer(np.random.default_rng(3)).scene.world(friction=0.4)
   cfg = jc.Config.for_world(world)
-  assert cfg.links == 4  # The demo scene is compacted.
+  assert cfg.links == 3  # The demo scene is compacted (boxes of half-width 0.4 to 0.6).
   final, traj = jc.rollout(world, cfg, 90, controls=jnp.zeros_like(world.pos).at[4, 0].set(20.0))
   full, full_traj = jc.rollout(world, cfg.replace(links=None), 90,
                                controls=jnp.zeros_like(world.pos).at[4, 0].set(20.0))
@@ -96,14 +96,41 @@ def test_too_many_links_are_reported_not_silently_dropped():
 
 
 def test_for_world_sizes_the_link_table_from_the_scene():
-  assert jc.Config.for_world(scenes.platformer().scene.world()).links == jc.config.MIN_LINKS
-  plank = plank_on_boxes(6)  # The plank has 6 links down: twice that is the whole row.
-  assert jc.Config.for_world(plank.world()).links is None
-  loose = scenes.random_boxes(np.random.default_rng(0), 10, extent=40.0)
-  loose = loose._replace(pos=loose.pos + 100.0)  # Well away from the plank and the floor.
-  wide = scenes.Scene(*(np.concatenate([a, b]) for a, b in zip(plank, loose)))
-  assert jc.Config.for_world(wide.world()).links == 12
-  assert jc.Config.for_world(wide.world(), links=3).links == 3  # Overrides win.
+  # Boxes of one size: a face meets at most 2 boxes that do not overlap each other.
+  room = scenes.lattice_room(16)
+  assert jc.Config.for_world(room.world()).links == 2
+  # The demo scene: half-widths 0.4 to 0.6 and heights 0.4 to 0.6 -> ceil(0.6 / 0.4) + 1.
+  world = scenes.platformer().scene.world()
+  assert jc.Config.for_world(world).links == 3 == sizing.link_bound(world)
+  plank = plank_on_boxes(6)  # Its face of 6 can meet 7 unit boxes: 7 of a row of 8.
+  assert jc.Config.for_world(plank.world()).links == 7
+  lone = plank_on_boxes(1)._replace(half=np.array([[50.0, 0.5], [3.0, 0.5], [0.5, 0.5]]))
+  assert sizing.link_bound(lone.world()) == 7  # Not below the row of 3: the whole row.
+  assert jc.Config.for_world(lone.world()).links is None
+  assert jc.Config.for_world(plank.world(), links=3).links == 3  # Overrides win.
+  # A unit box on tiles a quarter wide: 4 under it, 5 when it straddles their seams.
+  tiles = scenes.Scene(np.array([[0.125, -0.5], [0.375, -0.5], [0.5, 0.5]]),
+                       np.array([[0.125, 0.5], [0.125, 0.5], [0.5, 0.5]]),
+                       np.array([np.inf, np.inf, 1.0]))
+  assert sizing.link_bound(tiles.world()) == 5
+  # Nothing movable: no row needs a link.
+  assert sizing.link_bound(tiles._replace(mass=np.full(3, np.inf)).world()) == 0
+
+
+def test_a_staggered_landing_fits_the_width_for_world_picks():
+  # A unit box falling onto two unit boxes side by side (offset by half): 2 links
+  # down, the width `link_bound` gives; no overflow, and the same as the whole row.
+  scene = scenes.Scene(np.array([[0.0, -0.5], [0.5, 0.5], [1.5, 0.5], [1.0, 1.6]]),
+                       np.array([[5.0, 0.5], [0.5, 0.5], [0.5, 0.5], [0.5, 0.5]]),
+                       np.array([np.inf, 1.0, 1.0, 1.0]))
+  world = scene.world(friction=0.5)
+  cfg = jc.Config.for_world(world)
+  assert cfg.links == 2
+  final, traj = jc.rollout(world, cfg, 30)
+  full, full_traj = jc.rollout(world, cfg.replace(links=None), 30)
+  assert int(final.status) == int(full.status) == 0
+  np.testing.assert_array_equal(traj.pos, full_traj.pos)
+  np.testing.assert_allclose(final.pos[3, 1], 1.5, atol=1e-4)  # Resting on both.
 
 
 def test_compact_links_have_finite_difference_gradients():

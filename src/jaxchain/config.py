@@ -192,9 +192,11 @@ class Config:
     dense pairs up to `DENSE_MAX_BODIES` body slots, else the grid, sized by
     `broadphase.allocate` from this world, unless the scene is so crowded that a
     grid row would hold over a quarter of the bodies (then dense is cheaper).
-    The link table keeps `max(MIN_LINKS, 2 * most links any movable body has in
-    one direction now)` per body and direction (None when that is not below the
-    candidate row: nothing to save). The neighbour table (`neighbors`, `margin`;
+    The link table keeps as many links per body and direction as non-overlapping
+    bodies of this scene's sizes can make (`sizing.link_bound`: 2 for boxes of one
+    size), or the most any movable body has now if that is more (None when that is
+    not below the candidate row: nothing to save); an overlapping crowd that needs
+    more raises `LINK_OVERFLOW`. The neighbour table (`neighbors`, `margin`;
     `sizing.neighbor_sizing`) gets a margin of half the thinnest movable body, or
     more for fast bodies and deep overlaps, and a width of `max(MIN_NEIGHBORS,
     1.5 * most partners within the margin now)`; it is left out (None) when that is

@@ -25,7 +25,7 @@ from jaxchain import broadphase, geometry
 from jaxchain.broadphase import allocate
 
 __all__ = ["DENSE_MAX_BODIES", "MAX_SUBSTEPS", "MIN_LINKS", "MIN_NEIGHBORS", "allocate",
-           "for_world", "measure", "measure_neighbors", "measure_table", "neighbor_sizing"]
+           "for_world", "link_bound", "measure", "measure_neighbors", "measure_table", "neighbor_sizing"]
 
 # Worlds with at most this many body slots use dense all-pairs candidates in
 # `for_world` and "auto". Measured with compact link tables
@@ -33,9 +33,13 @@ __all__ = ["DENSE_MAX_BODIES", "MAX_SUBSTEPS", "MIN_LINKS", "MIN_NEIGHBORS", "al
 # for one world and for batches of 16; between the two it is not measured.
 DENSE_MAX_BODIES = 192
 
-# `for_world` keeps at least this many links per body and direction (two unit boxes
-# side by side under a third is 2; an overlapping crowd may have 3).
-MIN_LINKS = 4
+# `for_world` keeps at least this many links per body and direction. Above it the
+# width comes from the scene's sizes (`link_bound`): bodies that do not overlap each
+# other can touch one face of a body at most `ceil(face / thinnest partner) + 1` at a
+# time (two unit boxes side by side under a third is 2), so a table that wide never
+# overflows without overlap; an overlapping crowd may need more, and raises
+# `LINK_OVERFLOW` (never a silent miss).
+MIN_LINKS = 1
 
 # `for_world` refuses a scene that would need more substeps than this to keep every
 # body under the tunnelling limit (a box of half-extent 1e-9 falling under gravity
@@ -127,10 +131,34 @@ def for_world(cls, world, /, **overrides):
                                        skin=base.skin)
     derived["depth"] = min(cap, max(cls.depth, 2 * int(np.max(chain_found, initial=0))))
     row = chosen.grid.row_size if uses_grid else n
-    links = max(MIN_LINKS, 2 * int(np.max(links_found, initial=0)))
+    links = max(MIN_LINKS, link_bound(world), int(np.max(links_found, initial=0)))
     derived["links"] = links if links < row else None
   derived.update({k: v for k, v in overrides.items() if k in derived_keys})
   return base.replace(**derived)
+
+
+def link_bound(world) -> int:
+  """The most links one body can have in one direction without overlap (host).
+
+  A movable body's face along x is `2 h_y` long; partners that touch it without
+  overlapping each other are disjoint intervals along y, each at least `2 min h_y`
+  long (the thinnest active body that is not a sensor), and at most
+  `ceil(h_y / min h_y) + 1` of them can meet the face (one may stick out at each end).
+  Likewise along y. The largest over movable bodies and both axes; 0 when nothing is
+  movable. Only immovable rows would need more (a wall with many boxes against it),
+  and the link table keeps no immovable rows.
+  """
+  active = np.asarray(world.active) & ~np.asarray(world.sensor)
+  movable = active & (np.asarray(world.inv_mass) > 0)
+  if not movable.any():
+    return 0
+  half = np.asarray(world.half, np.float64)
+  thinnest = np.min(half[active], axis=0)  # [2]: per axis, over every world.
+  widest = np.max(half[movable], axis=0)
+  # Along x the face runs along y, and the other way round; a rounding margin keeps an
+  # exact multiple (unit boxes on unit boxes) at its own count.
+  ratio = widest[::-1] / thinnest[::-1]
+  return int(np.max(np.ceil(ratio * (1 - 1e-6)))) + 1
 
 
 def uses_layers(world) -> bool:

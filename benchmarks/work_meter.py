@@ -1,0 +1,271 @@
+"""The work meter: how much one step computes, counted, not timed (issue 23).
+
+Walks the jaxpr of one step of one world and counts, for every primitive, the elements
+it produces and, for gathers, the elements it gathers; the body of a `scan` (every
+static-trip `fori_loop` is one) counts `length` times, a `while_loop` (`converge`) once
+per iteration of its static bound (its upper limit; the meter runs the fixed-depth
+step). Divided by the bodies, that is elements per body-step, split by stage (the
+jaxchain function that made the equation: broadphase, contacts, link table, chain
+hops, impulses, friction, ...). It does not depend on the machine or its load: the
+figure to watch while changing the step, and what `tests/test_work_meter.py` holds
+under a budget. On XLA:CPU a gathered element costs about 0.65-1.06 ns and a fused
+arithmetic element 0.015-0.07 ns (issue 23), so gathers and materialised buffers are
+the budget; elements produced over-count what XLA fuses, which is why both are shown.
+
+Scenes (`SCENES`): the room of 64 (`benchmarks/peers.py`: 68 bodies, friction 0.5,
+`Config.for_world`), the demo platformer (`jaxchain demo`'s scene, fixed depth), and a
+shipped platformer level (platformer1, one-way platforms and sensors).
+
+    python benchmarks/work_meter.py              # all scenes; writes results/work_meter.md
+    python benchmarks/work_meter.py --against b26b41f   # also a commit, in a fresh interpreter
+    python benchmarks/work_meter.py --smoke --out /tmp/x
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+import json
+import pathlib
+import subprocess
+import sys
+import tempfile
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from _bench import add_common_args, machine, out_dir
+
+# Stage of an equation: the innermost jaxchain frame that is not a shared helper, by
+# (file, function prefix); first match wins. Helpers (gathers, reductions over link
+# slots, safe division, loops) count toward the stage that called them.
+HELPERS = {
+    ("gather.py", ""), ("sharding.py", ""), ("geometry.py", "Links."), ("geometry.py", "opposite"),
+    ("geometry.py", "_materialise"), ("geometry.py", "Candidates."), ("chain.py", "safe_divide"),
+    ("chain.py", "repeat"), ("chain.py", "behind"), ("chain.py", "_along"),
+}
+STAGES = [
+    ("broadphase.py", "", "broadphase"),
+    ("geometry.py", "first_set", "link table"),
+    ("geometry.py", "link_table", "link table"),
+    ("geometry.py", "by_direction", "link table"),
+    ("geometry.py", "links", "link table"),
+    ("geometry.py", "", "contacts"),
+    ("chain.py", "backing", "chain: backing"),
+    ("chain.py", "displacement.<locals>.push_hop", "chain: push"),
+    ("chain.py", "displacement.<locals>.refine", "chain: refine"),
+    ("chain.py", "displacement.<locals>.velocity_change", "chain: refine"),
+    ("chain.py", "_link_impulses", "chain: impulses"),
+    ("chain.py", "", "chain: split"),
+    ("velocity.py", "crush", "crush"),
+    ("velocity.py", "", "friction"),
+    ("flags.py", "", "flags, sensors"),
+    ("stepping.py", "", "integrate, step"),
+]
+ORDER = list(dict.fromkeys(s for _, _, s in STAGES)) + ["other"]
+
+
+def _stage(eqn) -> str:
+  tb = eqn.source_info.traceback
+  frames = [] if tb is None else tb.frames  # Innermost first.
+  for fr in frames:
+    path = fr.file_name.replace("\\", "/")
+    if "/jaxchain/" not in path:
+      continue
+    file, fn = path.rsplit("/", 1)[-1], fr.function_name
+    if any(file == f and fn.startswith(p) for f, p in HELPERS):
+      continue
+    for f, p, stage in STAGES:
+      if file == f and fn.startswith(p):
+        return stage
+  return "other"
+
+
+def _size(aval) -> int:
+  shape = getattr(aval, "shape", None)
+  return 0 if shape is None else int(np.prod(shape, dtype=np.int64))
+
+
+@dataclasses.dataclass
+class Count:
+  """Elements produced and gathered, in total and by stage (per call of the function)."""
+
+  elements: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+  gathered: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+  primitives: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+  while_loops: int = 0
+
+  def add(self, eqn, times: int, stage: str) -> None:
+    out = sum(_size(v.aval) for v in eqn.outvars) * times
+    self.elements[stage] += out
+    self.primitives[eqn.primitive.name] += out
+    if eqn.primitive.name == "gather":
+      self.gathered[stage] += out
+
+
+def _sub_jaxprs(eqn, times: int):
+  """The jaxprs inside `eqn` with how often each runs, or [] for a plain equation."""
+  p, name = eqn.params, eqn.primitive.name
+  if name == "scan":
+    return [(p["jaxpr"].jaxpr, times * p["length"])]
+  if name == "while":
+    return None  # Handled by the caller (needs the bound).
+  if name == "cond":
+    return [(b.jaxpr, times) for b in p["branches"]]
+  subs = []
+  for value in p.values():
+    inner = getattr(value, "jaxpr", value)
+    if hasattr(inner, "eqns"):
+      subs.append((inner, times))
+  return subs
+
+
+def walk(jaxpr, times: int, count: Count, while_trips: int, outer: str = "other") -> None:
+  """Counts `jaxpr`'s equations into `count`, `times` each. An equation whose traceback
+  names no jaxchain stage takes the stage of the equation it is inside (`outer`): JAX
+  caches the jaxprs of its own jitted helpers (`jnp.where`, ...) and of custom rules
+  (`gather.take`), so their equations carry the traceback of their first trace."""
+  for eqn in jaxpr.eqns:
+    stage = _stage(eqn)
+    stage = outer if stage == "other" else stage
+    subs = _sub_jaxprs(eqn, times)
+    if subs is None:  # A while loop: counted at `while_trips` iterations.
+      count.while_loops += 1
+      subs = [(eqn.params["body_jaxpr"].jaxpr, times * while_trips),
+              (eqn.params["cond_jaxpr"].jaxpr, times * while_trips)]
+    if subs:
+      for sub, t in subs:
+        walk(sub, t, count, while_trips, stage)
+    else:
+      count.add(eqn, times, stage)
+
+
+def meter(fn, *args, while_trips: int = 1) -> Count:
+  """The `Count` of one call of `fn(*args)` (traced, never run)."""
+  count = Count()
+  walk(jax.make_jaxpr(fn)(*args).jaxpr, 1, count, while_trips)
+  return count
+
+
+# --- Scenes ----------------------------------------------------------------------------
+
+
+def room64(n: int = 64):
+  """The peers' room (`benchmarks/peers.py`): `n` unit boxes falling in a closed room,
+  friction 0.5, g = -9.81, dt = 1/60, `Config.for_world`."""
+  import jaxchain as jc
+  s = jc.scenes.lattice_room(n, 0)
+  world = jc.World.create(s.pos, s.half, s.mass, friction=0.5, gravity=(0.0, -9.81))
+  return world, jc.Config.for_world(world, dt=1 / 60)
+
+
+def demo():
+  """`jaxchain demo`'s scene (one world of it), at fixed depth (the demo converges)."""
+  import jaxchain as jc
+  p = jc.scenes.platformer(np.random.default_rng(0))
+  world = p.scene.world(friction=0.5)
+  return world, jc.Config.for_world(world)
+
+
+def platformer_level():
+  """The shipped level platformer1 (one-way platforms, sensors), `Config.for_world`."""
+  import jaxchain as jc
+  level = jc.levels.load("platformer1")
+  world = level.world(friction=0.5)
+  return world, jc.Config.for_world(world)
+
+
+SCENES = {"room of 64": room64, "demo": demo, "platformer1": platformer_level}
+
+
+def scene_counts(smoke: bool = False) -> dict[str, dict]:
+  """`{scene: {"bodies", "config", "elements", "gathered", "stages"}}`, per body-step."""
+  import jaxchain as jc
+  out = {}
+  for name, make in SCENES.items():
+    world, config = make(8) if (smoke and name == "room of 64") else make()
+    n = world.num_bodies
+    count = meter(lambda w: jc.step(w, config), world)
+    stages = {s: [count.elements[s] / n, count.gathered[s] / n] for s in ORDER
+              if count.elements[s]}
+    out[name] = dict(bodies=n, config=_config_line(config),
+                     elements=sum(count.elements.values()) / n,
+                     gathered=sum(count.gathered.values()) / n, stages=stages,
+                     while_loops=count.while_loops)
+  return out
+
+
+def _config_line(config) -> str:
+  keys = ("depth", "iterations", "links", "neighbors", "friction", "one_way", "sensors",
+          "layers", "converge")
+  return ", ".join(f"{k}={getattr(config, k)}" for k in keys if hasattr(config, k))
+
+
+def _against(commit: str, smoke: bool) -> dict:
+  """The same counts for `commit`, exported with `git archive` and metered by this script
+  in a fresh interpreter with that tree's `src` first on the path."""
+  root = pathlib.Path(__file__).resolve().parents[1]
+  with tempfile.TemporaryDirectory() as tmp:
+    tree = pathlib.Path(tmp) / "tree"
+    tree.mkdir()
+    archive = subprocess.run(["git", "-C", str(root), "archive", commit], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    code = (f"import sys, json; sys.path[:0] = [{str(tree / 'src')!r}, "
+            f"{str(pathlib.Path(__file__).parent)!r}]; import work_meter as m; "
+            f"print(json.dumps(m.scene_counts({smoke})))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=tmp)
+    if done.returncode:
+      print(f"--against {commit}: could not meter it:\n{done.stderr[-2000:]}", file=sys.stderr)
+      return {}
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def table(results: dict[str, dict], against: dict[str, dict] | None = None) -> list[str]:
+  lines = ["| scene | bodies | elements / body-step | gathered / body-step | config |",
+           "|---|---|---|---|---|"]
+  for label, res in [("", results)] + [(f" at {c}", r) for c, r in (against or {}).items()]:
+    for name, r in res.items():
+      lines.append(f"| {name}{label} | {r['bodies']} | {r['elements']:,.0f} | "
+                   f"{r['gathered']:,.0f} | {r['config']} |")
+  return lines
+
+
+def stage_table(name: str, r: dict) -> list[str]:
+  lines = [f"### {name}: by stage", "", "| stage | elements / body-step | gathered / body-step |",
+           "|---|---|---|"]
+  for stage, (e, g) in r["stages"].items():
+    lines.append(f"| {stage} | {e:,.0f} | {g:,.0f} |")
+  lines.append(f"| **total** | **{r['elements']:,.0f}** | **{r['gathered']:,.0f}** |")
+  return lines + [""]
+
+
+def main(argv=None) -> None:
+  parser = add_common_args(argparse.ArgumentParser(description=__doc__.split("\n")[0]))
+  parser.add_argument("--against", nargs="*", default=[], metavar="COMMIT",
+                      help="also meter these commits (git archive, fresh interpreter)")
+  args = parser.parse_args(argv)
+  results = scene_counts(args.smoke)
+  against = {c: _against(c, args.smoke) for c in args.against}
+  lines = ["# Work meter: elements per body-step", "",
+           f"{machine()}. Counted from the jaxpr of one step of one world (`python "
+           "benchmarks/work_meter.py`): every equation's output elements, gathers' "
+           "elements apart, loop bodies times their trip counts; per body. Deterministic: "
+           "it does not depend on the machine or its load. Issue 23's budget for the "
+           "room of 64: must <= 6,000 / <= 500, goal <= 3,000 / <= 250.", ""]
+  lines += table(results, against) + [""]
+  for name, r in results.items():
+    lines += stage_table(name, r)
+  for commit, res in against.items():
+    for name, r in res.items():
+      lines += stage_table(f"{name} at {commit}", r)
+  text = "\n".join(lines)
+  print(text)
+  (out_dir(args) / "work_meter.md").write_text(text + "\n")
+
+
+if __name__ == "__main__":
+  main()
