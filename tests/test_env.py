@@ -653,3 +653,61 @@ def test_docs_two_box_task_is_short_and_matches_the_example():
   room = lambda text: text.split('ROOM = """')[1].split('"""')[0]
   body = lambda text: text.split("def reward(")[1].split("\n\n")[0].split("\n", 1)[1]
   assert room(block) == room(example) and body(block) == body(example)
+
+
+# Physics ranges that no step can use are refused, naming the parameter.
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(friction=(-0.1, 0.5)), "friction coefficients must be >= 0"),
+    (dict(friction=(float("nan"), 0.5)), "friction must be finite"),
+    (dict(friction=(0.2, float("inf"))), "friction must be finite"),
+    (dict(friction=(0.8, 0.2)), "friction needs lo <= hi"),
+    (dict(mass=(0.0, 2.0)), "mass factors must be > 0"),
+    (dict(mass=(-1.0, 2.0)), "mass factors must be > 0"),
+    (dict(mass=(float("nan"), 2.0)), "mass must be finite"),
+    (dict(size=(0.0, 1.0)), "size factors must be > 0"),
+    (dict(gravity=((0.0, float("nan")), (0.0, -1.0))), "gravity must be finite"),
+    (dict(gravity=((0.0, -1.0), (0.0, -2.0))), "gravity needs lo <= hi"),
+    (dict(mass=0.5), "mass must be a pair"),
+])
+def test_uniform_physics_refuses_bad_ranges(kwargs, message):
+  with pytest.raises(ValueError, match=f"uniform_physics: {message}"):
+    jc_env.make("push_box_easy", randomize=jc_env.uniform_physics(**kwargs))
+
+
+def test_uniform_physics_is_a_picklable_value():
+  import pickle
+  hook = jc_env.uniform_physics(friction=(0, 1), mass=(0.5, 2), gravity=((0, -2), (0, -1)))
+  assert hook.friction == (0.0, 1.0) and hook.gravity == ((0.0, -2.0), (0.0, -1.0))
+  assert pickle.loads(pickle.dumps(hook)) == hook and hash(hook) == hash(pickle.loads(
+      pickle.dumps(hook)))
+  # Edge values that are valid: friction 0, equal bounds.
+  assert jc_env.uniform_physics(friction=(0.0, 0.0), mass=(1.0, 1.0)).mass == (1.0, 1.0)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(friction=-0.5), "friction must be one finite coefficient >= 0"),
+    (dict(friction=float("nan")), "friction must be one finite coefficient >= 0"),
+    (dict(gravity=(0.0, float("nan"))), r"gravity must be a finite \(gx, gy\)"),
+    (dict(gravity=(0.0, -9.81, 0.0)), r"gravity must be a finite \(gx, gy\)"),
+])
+def test_make_refuses_bad_physics_values(kwargs, message):
+  with pytest.raises(ValueError, match=message):
+    jc_env.make("push_box_easy", **kwargs)
+
+
+def test_make_refuses_a_hook_that_gives_unusable_physics():
+  """A hook of the user's own (not `uniform_physics`) is checked on make's probe resets."""
+  def negative_friction(key, world, params):
+    del key, params
+    return world.replace(friction=jnp.where(world.active, -0.25, 0.0).astype(world.pos.dtype))
+
+  def zero_mass(key, world, params):
+    del key, params
+    return world.replace(inv_mass=jnp.where(world.movable, jnp.inf, world.inv_mass))
+
+  with pytest.raises(ValueError, match="randomize hook gave a friction"):
+    jc_env.make("push_box_easy", randomize=negative_friction)
+  with pytest.raises(ValueError, match="randomize hook gave a mass"):
+    jc_env.make("push_box_easy", randomize=zero_mass)

@@ -141,13 +141,14 @@ from jaxchain.env.spaces import Box, Discrete
 from jaxchain.env.tasks import (TASK_DEFS, TASK_LEVELS, TASKS, all_goals_filled,
                                     box_drag_x, box_goal_distance, drag, goals_filled, make,
                                     patrol, push_reward, push_terminate, reach_reward,
-                                    reach_terminate, uniform_physics)
+                                    reach_terminate, UniformPhysics,
+                                    uniform_physics)
 
 __all__ = [
     "ACTIONS", "CHECK_ACTIONS", "LEVELS", "MOVES", "OBS_MODES", "PLAYER_FEATURES", "SLOT_FIELDS",
     "TASKS", "TASK_DEFS", "TASK_LEVELS", "Accelerate", "ActionMap", "Box", "Discrete",
     "EnvParams", "EnvState", "Environment", "Moves", "PushBoxParams", "ReachFlagParams",
-    "RunJump", "Task", "all_goals_filled", "box_drag_x", "box_goal_distance", "drag",
+    "RunJump", "Task", "UniformPhysics", "all_goals_filled", "box_drag_x", "box_goal_distance", "drag",
     "goals_filled", "load_level", "make", "patrol", "push_reward", "push_terminate",
     "reach_reward", "reach_terminate", "senses", "uniform_physics",
 ]

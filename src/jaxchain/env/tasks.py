@@ -4,10 +4,12 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxchain.config import Config
 from jaxchain.env import core
@@ -129,20 +131,101 @@ def patrol(env, state, params):
 # Randomisation.
 
 
-def uniform_physics(*, gravity=None, friction=None, mass=None, size=None):
+def _float_pair(name: str, value, *, positive: bool) -> tuple[float, float]:
+  """`value` as a `(lo, hi)` pair of finite floats with `lo <= hi`, `lo >= 0` (or `> 0`
+  when `positive`); else a ValueError that names the parameter."""
+  bound = "> 0" if positive else ">= 0"
+  try:
+    lo, hi = (float(v) for v in value)
+  except (TypeError, ValueError):
+    raise ValueError(f"uniform_physics: {name} must be a pair (lo, hi) of numbers, got "
+                     f"{value!r}") from None
+  if not (math.isfinite(lo) and math.isfinite(hi)):
+    raise ValueError(f"uniform_physics: {name} must be finite, got ({lo}, {hi})")
+  if (lo <= 0) if positive else (lo < 0):
+    what = "factors" if name in ("mass", "size") else "coefficients"
+    raise ValueError(f"uniform_physics: {name} {what} must be {bound}, got ({lo}, {hi})")
+  if lo > hi:
+    raise ValueError(f"uniform_physics: {name} needs lo <= hi, got ({lo}, {hi})")
+  return lo, hi
+
+
+def _gravity_range(value) -> tuple[tuple[float, float], tuple[float, float]]:
+  try:
+    lo, hi = (tuple(float(x) for x in g) for g in value)
+    if len(lo) != 2 or len(hi) != 2:
+      raise ValueError
+  except (TypeError, ValueError):
+    raise ValueError(f"uniform_physics: gravity must be ((gx_lo, gy_lo), (gx_hi, gy_hi)), got "
+                     f"{value!r}") from None
+  if not all(math.isfinite(x) for x in lo + hi):
+    raise ValueError(f"uniform_physics: gravity must be finite, got ({lo}, {hi})")
+  if any(a > b for a, b in zip(lo, hi)):
+    raise ValueError(f"uniform_physics: gravity needs lo <= hi per component, got ({lo}, {hi})")
+  return lo, hi
+
+
+@dataclasses.dataclass(frozen=True)
+class UniformPhysics:
+  """The `randomize(key, world, params) -> world` hook of `uniform_physics`: a frozen
+  value (hashable, picklable) holding the validated ranges; see `uniform_physics`."""
+
+  gravity: tuple | None = None
+  friction: tuple[float, float] | None = None
+  mass: tuple[float, float] | None = None
+  size: tuple[float, float] | None = None
+
+  def __post_init__(self):
+    if self.gravity is not None:
+      object.__setattr__(self, "gravity", _gravity_range(self.gravity))
+    for name, positive in (("friction", False), ("mass", True), ("size", True)):
+      if getattr(self, name) is not None:
+        object.__setattr__(self, name, _float_pair(name, getattr(self, name), positive=positive))
+
+  def __call__(self, key, world, params):
+    del params
+    dtype = world.pos.dtype
+    k_g, k_f, k_m, k_s = jax.random.split(key, 4)
+    n = world.num_bodies
+    if self.gravity is not None:
+      lo, hi = (jnp.asarray(g, dtype) for g in self.gravity)
+      world = dataclasses.replace(world, gravity=jax.random.uniform(k_g, (2,), dtype, lo, hi))
+    if self.friction is not None:
+      mu = jax.random.uniform(k_f, (), dtype, *self.friction)
+      world = dataclasses.replace(world, friction=jnp.where(world.active, mu, 0.0).astype(dtype))
+    movable = world.movable
+    if self.mass is not None:
+      scale = jax.random.uniform(k_m, (n,), dtype, *self.mass)
+      world = dataclasses.replace(world, inv_mass=jnp.where(movable, world.inv_mass / scale,
+                                                            world.inv_mass))
+    if self.size is not None:
+      scale = jax.random.uniform(k_s, (n,), dtype, *self.size)
+      world = dataclasses.replace(world, half=jnp.where(movable[:, None],
+                                                        world.half * scale[:, None], world.half))
+    return world
+
+
+def uniform_physics(*, gravity=None, friction=None, mass=None, size=None) -> UniformPhysics:
   """A `randomize(key, world, params) -> world` hook drawing per-episode physics.
 
   Args:
     gravity: optional `((gx_lo, gy_lo), (gx_hi, gy_hi))`: the world's gravity,
       uniform per component.
-    friction: optional `(lo, hi)`: one Coulomb coefficient for every body.
-    mass: optional `(lo, hi)`: each movable body's mass times a uniform factor.
-    size: optional `(lo, hi)`: each movable body's half-extents times a uniform
-      factor (both axes alike).
+    friction: optional `(lo, hi)` with `0 <= lo <= hi`: one Coulomb coefficient for
+      every body.
+    mass: optional `(lo, hi)` with `0 < lo <= hi`: each movable body's mass times a
+      uniform factor.
+    size: optional `(lo, hi)` with `0 < lo <= hi`: each movable body's half-extents
+      times a uniform factor (both axes alike).
 
   Returns:
-    The hook, for `make(..., randomize=...)` or `Task(randomize=...)`. `make`
-    switches friction and gravity on in the Config when the hook sets them.
+    The hook (a frozen, picklable `UniformPhysics`), for `make(..., randomize=...)`
+    or `Task(randomize=...)`. `make` switches friction and gravity on in the Config
+    when the hook sets them.
+
+  Raises:
+    ValueError: naming the parameter, for a range that is not finite, has
+      `lo > hi`, or holds a negative friction or a mass or size factor <= 0.
 
   Examples:
     >>> import jax
@@ -152,30 +235,12 @@ def uniform_physics(*, gravity=None, friction=None, mass=None, size=None):
     >>> state = env.reset_level(jax.random.key(0), params, 0)
     >>> env.config.friction, 0.2 <= float(state.world.friction[0]) <= 0.8
     (True, True)
+    >>> jc.env.uniform_physics(mass=(0.0, 2.0))
+    Traceback (most recent call last):
+    ...
+    ValueError: uniform_physics: mass factors must be > 0, got (0.0, 2.0)
   """
-  def randomize(key, world, params):
-    del params
-    dtype = world.pos.dtype
-    k_g, k_f, k_m, k_s = jax.random.split(key, 4)
-    n = world.num_bodies
-    if gravity is not None:
-      lo, hi = (jnp.asarray(g, dtype) for g in gravity)
-      world = dataclasses.replace(world, gravity=jax.random.uniform(k_g, (2,), dtype, lo, hi))
-    if friction is not None:
-      mu = jax.random.uniform(k_f, (), dtype, *friction)
-      world = dataclasses.replace(world, friction=jnp.where(world.active, mu, 0.0).astype(dtype))
-    movable = world.movable
-    if mass is not None:
-      scale = jax.random.uniform(k_m, (n,), dtype, *mass)
-      world = dataclasses.replace(world, inv_mass=jnp.where(movable, world.inv_mass / scale,
-                                                            world.inv_mass))
-    if size is not None:
-      scale = jax.random.uniform(k_s, (n,), dtype, *size)
-      world = dataclasses.replace(world, half=jnp.where(movable[:, None], world.half * scale[:, None],
-                                                        world.half))
-    return world
-
-  return randomize
+  return UniformPhysics(gravity=gravity, friction=friction, mass=mass, size=size)
 
 
 # The shipped tasks.
@@ -201,6 +266,19 @@ TASKS = tuple(TASK_DEFS)
 TASK_LEVELS = types.MappingProxyType({k: t.levels for k, t in TASK_DEFS.items()})
 
 _MAKE_KEYWORDS = ("levels", "obs", "config", "randomize", "check_actions", "pixel_size")
+
+
+def _check_physics_value(name: str, key: str, value) -> None:
+  """`make`'s `friction=` (a finite coefficient >= 0) or `gravity=` (a finite `(gx, gy)`)."""
+  try:
+    v = np.asarray(value, np.float64)
+  except (TypeError, ValueError):
+    raise ValueError(f"make({name!r}): {key} must be a number, got {value!r}") from None
+  if key == "friction" and (v.shape != () or not np.isfinite(v) or v < 0):
+    raise ValueError(f"make({name!r}): friction must be one finite coefficient >= 0, got "
+                     f"{value!r}")
+  if key == "gravity" and (v.shape != (2,) or not np.all(np.isfinite(v))):
+    raise ValueError(f"make({name!r}): gravity must be a finite (gx, gy), got {value!r}")
 
 
 def make(task, *, levels=None, obs=None, config: Config | None = None, randomize=None,
@@ -272,6 +350,7 @@ def make(task, *, levels=None, obs=None, config: Config | None = None, randomize
       if isinstance(value, bool):
         config_kw[key] = value
       else:
+        _check_physics_value(task.name, key, value)
         params_kw[key] = jnp.asarray(value, jnp.float32)
         config_kw[key] = True
     elif key in param_fields:
