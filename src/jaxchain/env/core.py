@@ -347,6 +347,28 @@ class Task:
     return dataclasses.replace(self, **changes)
 
 
+def _check_randomized(name: str, worlds: World) -> None:
+  """Raises when a randomize hook gave physics no step can use (on `make`'s probe resets):
+  a friction that is negative or not finite, a mass <= 0 or not finite (an inverse mass
+  < 0 or not finite), a half-extent <= 0 or not finite, a gravity not finite."""
+  active = np.asarray(worlds.active)
+  checks = (
+      ("friction", np.asarray(worlds.friction), lambda f: np.isfinite(f) & (f >= 0),
+       "finite and >= 0 (uniform_physics: friction=(lo, hi) with 0 <= lo <= hi)"),
+      ("mass", np.asarray(worlds.inv_mass), lambda m: np.isfinite(m) & (m >= 0),
+       "> 0 (uniform_physics: mass factors > 0)"),
+      ("size", np.asarray(worlds.half), lambda h: np.all(np.isfinite(h) & (h > 0), axis=-1),
+       "finite half-extents > 0 (uniform_physics: size factors > 0)"),
+  )
+  for field, values, ok, want in checks:
+    bad = active & ~ok(values)
+    if np.any(bad):
+      raise ValueError(f"make({name!r}): the randomize hook gave a {field} that is not "
+                       f"{want}: {values[bad][:3].tolist()}")
+  if not np.all(np.isfinite(np.asarray(worlds.gravity))):
+    raise ValueError(f"make({name!r}): the randomize hook gave a gravity that is not finite")
+
+
 def _is_traced(x) -> bool:
   return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x))
 
@@ -452,6 +474,7 @@ class Environment:
       levels = jnp.tile(jnp.arange(self.num_levels, dtype=jnp.int32), 2)
       probe = jax.jit(jax.vmap(lambda k, lv: self.reset_level(k, params, lv).world))(keys, levels)
       sized = jax.tree.map(lambda a, b: jnp.concatenate([jnp.asarray(a), b]), sized, probe)
+      _check_randomized(name, probe)
     overrides = dict(config_overrides or {})
     if config is None:
       config = Config.for_world(sized, **{"converge": False, **overrides})
@@ -482,6 +505,18 @@ class Environment:
       self._obs_space = Box(-math.inf, math.inf, tuple(spec.shape), np.dtype(spec.dtype))
     else:
       self._obs_space = observations.space(self)
+
+  def __getstate__(self) -> dict:
+    """For pickle and `copy.deepcopy` (gymnax's Gym wrappers deep-copy their env): the
+    read-only `level_data` view travels as a plain dict."""
+    state = dict(self.__dict__)
+    state["level_data"] = dict(self.level_data)
+    return state
+
+  def __setstate__(self, state: dict) -> None:
+    state = dict(state)
+    state["level_data"] = types.MappingProxyType(dict(state["level_data"]))
+    self.__dict__.update(state)
 
   @staticmethod
   def _uses(worlds: World, field: str) -> bool:
