@@ -113,6 +113,14 @@ def test_for_world_sizes_the_link_table_from_the_scene():
                        np.array([[0.125, 0.5], [0.125, 0.5], [0.5, 0.5]]),
                        np.array([np.inf, np.inf, 1.0]))
   assert sizing.link_bound(tiles.world()) == 5
+  # Thin one-way ledges (half-height 0.125) meet bodies along y only: along x only the
+  # solid bodies count (unit boxes: 2), along y the ledges' widths (>= 1: 2).
+  ledges = scenes.Scene(np.array([[0.0, -0.5], [3.0, 1.0], [3.0, 2.0], [0.5, 0.5]]),
+                        np.array([[5.0, 0.5], [1.0, 0.125], [1.0, 0.125], [0.5, 0.5]]),
+                        np.array([np.inf, np.inf, np.inf, 1.0]))
+  one_way = jc.World.create(*ledges, one_way=[False, True, True, False])
+  assert sizing.link_bound(one_way) == 2
+  assert sizing.link_bound(ledges.world()) == 5  # As solid bodies: 0.5 / 0.125 + 1.
   # Nothing movable: no row needs a link.
   assert sizing.link_bound(tiles._replace(mass=np.full(3, np.inf)).world()) == 0
 

@@ -144,16 +144,20 @@ def link_bound(world) -> int:
   overlapping each other are disjoint intervals along y, each at least `2 min h_y`
   long (the thinnest active body that is not a sensor), and at most
   `ceil(h_y / min h_y) + 1` of them can meet the face (one may stick out at each end).
-  Likewise along y. The largest over movable bodies and both axes; 0 when nothing is
-  movable. Only immovable rows would need more (a wall with many boxes against it),
-  and the link table keeps no immovable rows.
+  Likewise along y. One-way bodies meet others along y only (a thin jump-through
+  ledge never sits beside a face along x), so they are left out of the partners along
+  x. The largest over movable bodies and both axes; 0 when nothing is movable. Only
+  immovable rows would need more (a wall with many boxes against it), and the link
+  table keeps no immovable rows.
   """
   active = np.asarray(world.active) & ~np.asarray(world.sensor)
   movable = active & (np.asarray(world.inv_mass) > 0)
   if not movable.any():
     return 0
   half = np.asarray(world.half, np.float64)
-  thinnest = np.min(half[active], axis=0)  # [2]: per axis, over every world.
+  beside = active & ~np.asarray(world.one_way)  # Partners along x.
+  thin_y = np.min(half[beside][:, 1], initial=np.inf)
+  thinnest = np.array([np.min(half[active][:, 0]), thin_y])  # Per axis, over every world.
   widest = np.max(half[movable], axis=0)
   # Along x the face runs along y, and the other way round; a rounding margin keeps an
   # exact multiple (unit boxes on unit boxes) at its own count.

@@ -1,0 +1,65 @@
+"""The work meter (`benchmarks/work_meter.py`) holds each scene's step under a budget.
+
+The meter counts, from the jaxpr of one step, the elements every equation produces and
+the elements gathers read, per body (loop bodies times their trip counts): what a step
+costs on XLA:CPU, without timing it. A change that makes a scene's step do more work
+than its budget fails here, so no change can quietly double the work again (issue 23:
+the room of 64 had gone from 11,800 to 22,600 elements per body-step). The budgets are
+the counts at the commit that set them plus a tenth; lower them when the step gets
+leaner, and raise one only with a reason in the commit message.
+"""
+
+import pathlib
+import sys
+
+import pytest
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
+import work_meter  # noqa: E402  (benchmarks/ is not a package)
+
+# Per body-step: (elements produced, elements gathered). Counted at links sized by
+# `sizing.link_bound` (room 16,043 / 1,028; demo 19,517 / 1,440; platformer1
+# 15,172 / 684), plus a tenth.
+BUDGETS = {
+    "room of 64": (17_700, 1_130),
+    "demo": (21_500, 1_590),
+    "platformer1": (16_700, 760),
+}
+
+
+@pytest.fixture(scope="module")
+def counts():
+  return work_meter.scene_counts()
+
+
+@pytest.mark.parametrize("scene", sorted(BUDGETS))
+def test_step_work_is_within_its_budget(counts, scene):
+  elements, gathered = BUDGETS[scene]
+  got = counts[scene]
+  stages = "\n".join(f"  {s:18s} {e:9,.0f} {g:7,.0f}" for s, (e, g) in got["stages"].items())
+  detail = f"{scene} ({got['config']}), per body-step by stage:\n{stages}"
+  assert got["elements"] <= elements, f"{got['elements']:,.0f} elements > {elements:,}: {detail}"
+  assert got["gathered"] <= gathered, f"{got['gathered']:,.0f} gathered > {gathered:,}: {detail}"
+
+
+def test_the_meter_counts_loops_by_their_trips():
+  import jax.numpy as jnp
+  from jax import lax
+
+  def f(x):  # 5 hops of a gather and an add over 10 elements, then one more add.
+    idx = jnp.arange(10) % 3
+    y = lax.fori_loop(0, 5, lambda _, y: y[idx] + 1.0, x)
+    return y * 2.0
+
+  count = work_meter.meter(f, jnp.zeros(10))
+  assert sum(count.gathered.values()) == 50
+  assert count.primitives["gather"] == 50 and count.primitives["mul"] == 10
+  assert count.primitives["add"] >= 50  # The loop's add (and its counter's) five times.
+
+
+def test_every_stage_is_named(counts):
+  # Equations the meter cannot place are "other": a new module or helper is missing
+  # from work_meter.STAGES / HELPERS, and the stage tables would hide its work.
+  for scene, got in counts.items():
+    other = got["stages"].get("other", (0.0, 0.0))
+    assert other[0] <= 0.01 * got["elements"], f"{scene}: {other[0]:,.0f} elements unplaced"
