@@ -1483,13 +1483,14 @@ def _parent(file):
 
 # Sokoban collections (several levels in one XSB file) and solutions.
 
-_XSB_ROW = frozenset("#@+$*.-_pPbB ")
 
 
 def _is_map_row(line: str, table) -> bool:
-  """A line of a level's map: only map characters, and at least one wall."""
-  line = line.rstrip()
-  return bool(line) and "#" in line and all(ch in table for ch in line) and not line.startswith(";")
+  """A line of a level's map: after leading floor (spaces, `-`, `_`) it starts with a
+  wall `#` (every XSB row does: its first solid cell is the outer wall). A line with a
+  stray character is still a map row, so `parse_ascii` reports the character."""
+  del table
+  return line.lstrip(" -_").startswith("#")
 
 
 def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0, 0.0),
@@ -1497,8 +1498,8 @@ def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0
   """Reads a Sokoban collection: several XSB levels in one text, as a list of `Level`s.
 
   The text is read line by line. A level is a run of consecutive map lines (lines
-  of map characters holding at least one wall `#`, not starting with `;`); a blank
-  line or a text line ends it. Every other line is text: `; ...` comments,
+  whose first character after leading floor, spaces `-` `_`, is a wall `#`: every
+  XSB row starts at the outer wall); a blank line or a text line ends it. Every other line is text: `; ...` comments,
   `Title: ...`, `Author: ...`, `Comment:` ... `Comment-End:` blocks, a collection's
   header. A level's title is, in this order: a `Title:` line in the paragraph
   right after its map (the text lines up to the next blank line) or in the last
@@ -1556,7 +1557,7 @@ def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0
       maps.append((start, k))
     k += 1
   if not maps:
-    raise ValueError(f"{source}: no level (no line of map characters with a wall '#')")
+    raise ValueError(f"{source}: no level (no line starting with a wall '#')")
 
   def paragraph_after(end):
     out, k = [], end + 1

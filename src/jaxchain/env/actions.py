@@ -6,7 +6,8 @@ An action map is a small frozen object with
 - `noop`: the action that does nothing (what an invalid action becomes);
 - `invalid(action)`: a bool scalar, True for an action outside the space that the
   env cannot use (a discrete action out of range, a non-finite continuous one);
-- `__call__(env, world, action, params)`: the player's `[2]` acceleration.
+- `__call__(env, world, action, params)`: the player's `[2]` acceleration, or the
+  `[n, 2]` accelerations of every body (a controller: `jaxchain.env.SokobanMoves`).
 
 `check(action)` runs at trace time: it raises for a wrong shape or dtype with a
 message naming `action`, and casts to the space's dtype. Ship your own map by

@@ -749,7 +749,11 @@ class Environment:
       forces = jnp.zeros_like(world.pos)
     else:
       forces = jnp.asarray(task.forces(self, world, params), world.pos.dtype)
-    new = state.replace(world=physics_step(world, self.config, forces.at[0].add(accel)))
+    # An action map gives the player's [2] acceleration, or (a controller such as
+    # SokobanMoves) every body's [n, 2].
+    accel = jnp.asarray(accel, world.pos.dtype)
+    forces = forces + accel if accel.ndim == 2 else forces.at[0].add(accel)
+    new = state.replace(world=physics_step(world, self.config, forces))
     reward = jnp.asarray(task.reward(self, state, action, new, params)).astype(jnp.float32)
     terminated, success = task.terminate(self, state, action, new, params)
     terminated = jnp.asarray(terminated, bool)

@@ -1,0 +1,170 @@
+"""Sokoban by the cell: `SokobanMoves`, an action map that moves the player exactly one
+cell per action with Sokoban's push rule, and `sokoban_terminate`.
+
+Why a controller. jaxchain's physics alone does not give Sokoban's rule: collision
+chaining pushes a row of touching boxes as one body (a box pushed into a box moves
+both), and a player that walks one cell into a box leaves the box where their faces
+touch (0.85 of a cell ahead for the default sizes, half 0.4 and 0.45), not one whole
+cell on. So `SokobanMoves` decides the move on the grid and drives the physics to
+carry it out: every physics step of an env step it returns the acceleration of every
+body (`[n, 2]`), which the physics integrates like any other.
+
+One env step is `repeat` physics steps (default 5):
+
+1. From rest, the move is planned on the world's own positions: the player's cell
+   `p`, the next cell `p + d` and the one after `p + 2d` (cell centres at
+   `(i + 0.5) * cell`). A body "is in" a cell when the cell's centre lies strictly
+   inside its box. The move is refused (nobody moves) when `p + d` is inside a wall
+   (an immovable, non-sensor body), or holds a box (a movable, non-sensor body other
+   than the player) while `p + 2d` holds a wall or a box. Otherwise the player moves,
+   and the box in `p + d` (if any) with it. The noop moves nobody.
+2. The movers get the velocity `d * cell / ((repeat - 1) * dt)` (a quarter of a cell
+   per physics step by default: below the tunnelling limit of `status.FAST_BODY`), and
+   keep it; the physics step that would carry a body past the next cell centre gets
+   the velocity that lands it exactly on that centre.
+3. A moving body on a cell centre is stopped (velocity 0).
+
+So after each env step the world is at rest and every player and box centre is a
+cell centre: exactly, when `dt` and `cell` are powers of two (`make(task, dt=1/64)`:
+every product and sum is then exact in float32); otherwise to within a float32
+rounding or two. While it moves, nothing else does: the cells it moves into are
+free, so the physics finds no contact (gaps of at least 0.1 cells with the default
+sizes) and its positions are the integrated velocities.
+
+Use it with start jitter 0 (`params.jitter = 0`: the bodies must start on cells), no
+drag or other task forces on the player and boxes, gravity 0 (XSB levels have it),
+`Config.substeps = 1` (checked at trace time) and `sokoban_terminate`, which ends an
+episode only once every goal holds a box and the world is at rest: the env stops an
+action repeat at termination, and a box sensed by its goal mid-move would stop
+there.
+
+    task = jc.env.Task(name="microban", levels=jc.levels.load_collection(path),
+                       actions=jc.env.SokobanMoves(), reward=jc.env.push_reward,
+                       terminate=jc.env.sokoban_terminate,
+                       params=jc.env.PushBoxParams(jitter=0.0, max_steps=1000))
+    env, params = jc.env.make(task, dt=1 / 64)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from jaxchain.env.actions import _MOVE_DIR, MOVES, ActionMap
+from jaxchain.env.spaces import Discrete
+
+# How far from a cell centre (in cells) a body still counts as on it, and how slow
+# (in cells per step) a body counts as at rest: both far above float32 rounding, far
+# below a step's motion.
+_ON_CENTRE = 1e-4
+_AT_REST = 1e-4
+
+
+@dataclasses.dataclass(frozen=True)
+class SokobanMoves(ActionMap):
+  """Sokoban moves by the cell, `Discrete(5)` (`MOVES`: noop, left, right, down, up).
+
+  Each env step moves the player exactly one cell, pushing a box ahead of it one
+  cell, unless the push rule refuses the move: a wall ahead, or a box ahead with a
+  wall or a box behind it, and then nothing moves. A controller: see
+  `jaxchain.env.sokoban` for how it drives the physics and what it needs (start
+  jitter 0, no task forces, `Config.substeps == 1`, `sokoban_terminate`).
+
+  Attributes:
+    repeat: physics steps per env step (>= 2): `repeat - 1` to move, one to stop.
+    cell: the grid's cell size in world units (1 for `jaxchain.levels` maps).
+
+  Examples:
+    >>> import jax, jax.numpy as jnp
+    >>> import jaxchain as jc
+    >>> task = jc.env.Task(name="s", levels=["#######\\n#@$ .#\\n#######"],
+    ...                    actions=jc.env.SokobanMoves(), reward=jc.env.push_reward,
+    ...                    terminate=jc.env.sokoban_terminate,
+    ...                    params=jc.env.PushBoxParams(jitter=0.0))
+    >>> env, params = jc.env.make(task, dt=1 / 64)
+    >>> state = env.reset_level(jax.random.key(0), params, 0)
+    >>> step = jax.jit(env.step_env)
+    >>> for a in (2, 2, 2):  # Right, right, right: the box reaches the wall side.
+    ...   _, state, _, done, info = step(jax.random.key(0), state, jnp.int32(a), params)
+    >>> state.world.pos[0].tolist(), bool(info["success"])
+    ([3.5, 1.5], True)
+  """
+
+  repeat: int = 5
+  cell: float = 1.0
+
+  def __post_init__(self):
+    super().__post_init__()
+    if self.repeat < 2:
+      raise ValueError(f"SokobanMoves: repeat must be >= 2 (repeat - 1 physics steps move, one "
+                       f"stops), got {self.repeat}")
+    if isinstance(self.cell, bool) or not isinstance(self.cell, (int, float)) or not self.cell > 0:
+      raise ValueError(f"SokobanMoves: cell must be a number > 0, got {self.cell!r}")
+
+  @property
+  def space(self) -> Discrete:
+    return Discrete(len(MOVES))
+
+  def __call__(self, env, world, action, params) -> jax.Array:
+    """`[n, 2]` accelerations of every body for one physics step (see the module)."""
+    del params
+    config = env.config
+    if config.substeps != 1:
+      raise ValueError(f"SokobanMoves: needs Config.substeps == 1 (an acceleration is held over "
+                       f"a whole step), got {config.substeps}")
+    dtype = world.pos.dtype
+    dt, cell = config.dt, self.cell
+    n = world.num_bodies
+    pos, vel, half = world.pos, world.vel, world.half
+    solid = world.active & ~world.sensor
+    wall = solid & (world.inv_mass == 0)
+    box = solid & (world.inv_mass > 0) & (jnp.arange(n) != 0)
+    movable = world.active & (world.inv_mass > 0)
+
+    def inside(point, mask):  # [n] bool: the bodies of `mask` whose box holds `point`.
+      return mask & jnp.all(jnp.abs(point[None] - pos) < half, axis=-1)
+
+    # Plan, from rest: whom to move (the player, and the box ahead on a push).
+    d = jnp.asarray(_MOVE_DIR, dtype)[action]
+    here = (jnp.floor(pos[0] / cell) + 0.5) * cell
+    ahead, beyond = here + d * cell, here + 2 * d * cell
+    box_ahead = inside(ahead, box)
+    blocked = (jnp.any(inside(ahead, wall)) |
+               (jnp.any(box_ahead) & jnp.any(inside(beyond, wall | box))))
+    go = (action != 0) & ~blocked
+    movers = go & (box_ahead | (jnp.arange(n) == 0))
+    speed = cell / ((self.repeat - 1) * dt)
+    planned = jnp.where(movers[:, None], d * speed, 0.0)
+
+    # Carry on: keep the velocity, land exactly on the next centre, stop on one.
+    g = pos / cell - 0.5  # Grid coordinates: cell centres are the integers.
+    on_centre = jnp.abs(g - jnp.round(g)) < _ON_CENTRE
+    next_centre = jnp.where(vel > 0, jnp.floor(g) + 1, jnp.ceil(g) - 1)
+    to_next = (next_centre - g) * cell
+    lands = jnp.abs(to_next) <= jnp.abs(vel) * dt * (1 + 1e-4)
+    carry = jnp.where(vel == 0, 0.0,
+                      jnp.where(on_centre, (jnp.round(g) - g) * cell / dt,
+                                jnp.where(lands, to_next / dt, vel)))
+
+    resting = ~jnp.any(movable[:, None] & (jnp.abs(vel) * dt > _AT_REST * cell))
+    target = jnp.where(resting, planned, carry)
+    return jnp.where(movable[:, None], (target - vel) / dt, 0.0).astype(dtype)
+
+
+def at_rest(world, cell: float = 1.0, dt: float = 1 / 60) -> jax.Array:
+  """`[]` bool: no movable body moves more than `_AT_REST` cells a step."""
+  movable = world.active & (world.inv_mass > 0)
+  return ~jnp.any(movable[:, None] & (jnp.abs(world.vel) * dt > _AT_REST * cell))
+
+
+def sokoban_terminate(env, old, action, new, params):
+  """`(terminated, success)`: every goal holds a box and the world is at rest (so a
+  `SokobanMoves` step is never cut short mid-move), or the player is crushed."""
+  del old, action, params
+  goal = env.slots_of("goal")
+  present = new.world.active[goal]
+  filled = jnp.any(present) & jnp.all(new.world.sensed[goal] | ~present)
+  success = filled & at_rest(new.world, dt=env.config.dt)
+  return success | new.world.crushed[0], success
