@@ -206,6 +206,45 @@ def test_converge_mode_gives_the_same_answers_bit_for_bit():
   assert exhausted.any() and not exhausted.all()  # Both ways out of the loop are exercised.
 
 
+def test_a_velocity_chain_cut_short_raises_depth_exhausted():
+  # Issue 24 item 1: a row of 16 touching boxes, the player half a skin away closing
+  # slowly. No overlap to resolve: only the velocity channel (an inelastic hit through
+  # the row) acts, and at depth 8 it stops halfway. The bit says so; depth 17 is exact.
+  row = scenes.push_chain(16, overlap=0.0, wall=False)
+  pos = row.pos.copy()
+  pos[0, 0] -= 0.5e-4
+  vel = np.zeros_like(pos)
+  vel[0, 0] = 0.002
+  world = jc.World.create(pos, row.half, row.mass, vel=vel, gravity=(0.0, 0.0))
+  short = jc.step(world, jc.Config(depth=8, gravity=False))
+  assert int(short.status) == jc.status.DEPTH_EXHAUSTED
+  assert float(jnp.max(jnp.abs(short.vel[:, 0] - 0.002 / 17))) > 1e-4  # It is wrong.
+  exact = jc.step(world, jc.Config(depth=17, gravity=False))
+  assert int(exact.status) == 0
+  np.testing.assert_allclose(exact.vel[:, 0], 0.002 / 17, rtol=1e-5)  # Momentum shared.
+  # A resting row longer than the depth that nothing pushes is exact: no bit.
+  rest = jc.step(world.replace(vel=jnp.zeros_like(world.vel)), jc.Config(depth=8, gravity=False))
+  assert int(rest.status) == 0
+
+
+def test_a_stack_settling_past_the_depth_raises_depth_exhausted():
+  # Issue 24 item 1: 12 boxes 0.1 apart fall onto a floor; `for_world` sees no chain
+  # and picks depth 8. The settled stack is 12 tall: the resolver's hops stop short of
+  # the floor, the top boxes keep speeds (the bit is set), and depth 13 settles them.
+  pos = np.r_[[[0.0, -0.5]], [[0.0, 0.5 + 1.1 * k] for k in range(12)]]
+  half = np.r_[[[5.0, 0.5]], np.full((12, 2), 0.5)]
+  world = jc.World.create(pos, half, np.r_[INF, np.ones(12)])
+  cfg = jc.Config.for_world(world, iterations=3)
+  assert cfg.depth == 8
+  short, traj = jc.rollout(world, cfg, 120, record=("status",))
+  last = int(traj.status[-1])
+  assert last & jc.status.DEPTH_EXHAUSTED
+  assert float(jnp.max(jnp.abs(short.vel[:, 1]))) > 0.01
+  deep, _ = jc.rollout(world, cfg.replace(depth=13), 120)
+  assert not int(deep.status) & jc.status.DEPTH_EXHAUSTED
+  np.testing.assert_allclose(deep.vel, 0.0, atol=1e-5)
+
+
 def test_converge_mode_is_forward_only():
   world = scenes.push_chain(3).world()
   loss = lambda x, c: jc.step(world.replace(pos=world.pos.at[0, 0].set(x)), c).pos[-1, 0]

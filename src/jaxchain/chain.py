@@ -99,8 +99,9 @@ class Pass(NamedTuple):
 
   Attributes:
     disp: `[n, 2]` displacement; exactly 0 for immovable bodies.
-    exhausted: bool, the K hops did not reach the end of some chain (one hop more
-      would still have changed a unit mass or a push).
+    exhausted: bool, the K hops did not reach the end of some chain that carries
+      something (one hop more would still have changed a unit mass behind a link with
+      a depth, or with `vel` an approach speed, or a push of either channel).
     crushed: `[n]` bool, movable bodies in a penetrating contact whose two units both
       lean on immovable bodies (see `displacement`).
     dvel: with `vel`: `[n, 2]` velocity change from the link impulses; else None.
@@ -111,6 +112,9 @@ class Pass(NamedTuple):
       along the other axis (`_link_impulses`); else None.
     sticking: with `vel`: `[l, 4, n]` bool, the links those units are made of.
     scaled: bool, the energy guard scaled the impulses down (`energy_scale < 1`).
+    short: `[4, n]` bool, where the K hops of the backing did not reach the end of the
+      chain (the units and every hop loop that walks the links from there: impulses,
+      friction, are cut short there too).
   """
 
   disp: jax.Array
@@ -122,6 +126,7 @@ class Pass(NamedTuple):
   shared: jax.Array | None
   sticking: jax.Array | None
   scaled: jax.Array
+  short: jax.Array
 
 
 def backing(front: geometry.Links, mass: jax.Array, immovable: jax.Array, depth: int, *,
@@ -223,8 +228,15 @@ def displacement(front: geometry.Links, mass: jax.Array, immovable: jax.Array, *
   mass_i, leans_i = behind(unit_mass), behind(leans)
   mass_j, leans_j = front.gather(unit_mass), front.gather(leans)
   depth_now = jnp.where(front.mask, jnp.maximum(front.overlap, 0.0), 0.0)
-  # Only the units a penetrating contact splits by matter for the report.
-  backing_short = jnp.any((depth_now > 0) & (behind(unit_short) | front.gather(unit_short)))
+  carries = depth_now > 0
+  if vel is not None:
+    m_dir = _along(vel)
+    approach = jnp.where(front.mask, m_dir[None] - front.gather(m_dir), 0.0)
+    carries = carries | (approach != 0)
+  # Only the units a link with something to carry (a depth to split, with `vel` an
+  # approach speed: the impulses walk the same units) splits by matter for the report:
+  # a resting row longer than K that nothing pushes is exact.
+  backing_short = jnp.any(carries & (behind(unit_short) | front.gather(unit_short)))
   jammed = front.mask & leans_i & leans_j
   weight = safe_divide(mass_j, mass_i + mass_j, default=0.5)
   weight = jnp.where(leans_j, 1.0, weight)
@@ -239,8 +251,6 @@ def displacement(front: geometry.Links, mass: jax.Array, immovable: jax.Array, *
   crush_push = jnp.max(jnp.where(jammed, 0.5 * depth_now, 0.0), axis=0, initial=0.0)
   crush_push = geometry.opposite(crush_push)
   if vel is not None:
-    m_dir = _along(vel)
-    approach = jnp.where(front.mask, m_dir[None] - front.gather(m_dir), 0.0)
     shares.append(jnp.where(approach > 0, approach * jnp.where(jammed, 0.0, weight), approach))
   share = geometry.opposite(jnp.stack(shares), 2)  # Rows of `back`: i pushed along d by j.
 
@@ -252,13 +262,15 @@ def displacement(front: geometry.Links, mass: jax.Array, immovable: jax.Array, *
 
   disp = jnp.zeros((share.shape[0],) + unit_mass.shape, dtype)
   disp, pushed_on = repeat(lambda x: push_hop(x, share), disp, depth + 1, converge, check=True)
-  # Reporting only: the position channel alone decides whether a push was cut short.
-  push_short = jnp.any(pushed_on[0])
+  # Reporting only: a push of either channel (positions, approach speeds) that one hop
+  # more would still change was cut short.
+  push_short = jnp.any(pushed_on)
   exhausted = lax.stop_gradient(backing_short | push_short)
   disp = disp.at[0].set(jnp.where(movable[None], jnp.maximum(disp[0], crush_push), 0.0))
   net = jnp.stack([disp[:, 0] - disp[:, 1], disp[:, 2] - disp[:, 3]], axis=-1)  # [k, n, 2]
   if vel is None:
-    return Pass(net[0], exhausted, crushed, None, None, jammed, None, None, jnp.zeros((), bool))
+    return Pass(net[0], exhausted, crushed, None, None, jammed, None, None, jnp.zeros((), bool),
+                unit_short)
   # Links whose two bodies slide past each other slower than `stick` move
   # together along the other axis: they form the units friction moves.
   t_dir = _along(vel[:, ::-1])  # Tangential velocity: y for links along x, x along y.
@@ -295,7 +307,7 @@ def displacement(front: geometry.Links, mass: jax.Array, immovable: jax.Array, *
   change = velocity_change(impulse_final)
   scale = energy_scale(vel, change, impulse_final, front, mass, immovable, m_dir)
   return Pass(net[0], exhausted, crushed, scale * change, scale * impulse_final, jammed, shared,
-              sticking, lax.stop_gradient(scale < 1))
+              sticking, lax.stop_gradient(scale < 1), unit_short)
 
 
 # Ulps of the kinetic energy below which `energy_scale` takes an energy change for

@@ -101,19 +101,19 @@ def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | 
     out = chain.displacement(front, mass, ~movable, depth=config.depth,
                              track_immovable=config.immovable, vel=v, stick=velocity.STICK,
                              converge=config.converge)
-    scaled = out.scaled
+    scaled, exhausted = out.scaled, out.exhausted
     if v is not None:
       v = v + out.dvel
       if config.immovable:
         v = velocity.crush(v, front, out.jammed, movable)
     if v is not None and config.has_friction:
-      v, rubbed = velocity.friction(v, front, out.impulse, world.friction, out.shared,
-                                    out.sticking, mass, depth=config.depth,
-                                    converge=config.converge)
-      scaled = scaled | rubbed
+      v, rubbed, cut = velocity.friction(v, front, out.impulse, world.friction, out.shared,
+                                         out.sticking, mass, depth=config.depth,
+                                         converge=config.converge, short=out.short)
+      scaled, exhausted = scaled | rubbed, exhausted | cut
     code = code | found | _pass_flags(overflow, scaled)
     touching = touching | flags.touching(front)
-    return p + out.disp, v, code, out.exhausted, crushed | out.crushed, touching
+    return p + out.disp, v, code, exhausted, crushed | out.crushed, touching
 
   zero = jnp.zeros((), jnp.int32)
   n = world.num_bodies

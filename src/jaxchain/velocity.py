@@ -37,7 +37,8 @@ SLIP = 1e-6
 
 def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficient: jax.Array,
              shared: jax.Array, sticking: jax.Array, mass: jax.Array, *, depth: int,
-             converge: bool = False) -> jax.Array:
+             converge: bool = False,
+             short: jax.Array | None = None) -> tuple[jax.Array, jax.Array, jax.Array]:
   """Coulomb friction impulses per link, acting on units, with mass splitting.
 
   Link `(d, i, j)` rubs along the other axis. What moves with i there is i's unit on
@@ -74,10 +75,14 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
     sticking: `[l, 4, n]` bool, the links those units are made of (`chain.Pass.sticking`).
     mass: `[n]` masses of movable bodies, 0 for the others (`chain.body_mass`).
     depth: hops a unit's motion travels (static).
+    short: optional `[4, n]` bool, where the resolver's `depth` hops did not reach the
+      end of a chain (`chain.Pass.short`): the friction units, made of a subset of the
+      same links, are cut short there too.
 
   Returns:
-    `(vel, scaled)`: `[n, 2]` velocities (immovable bodies unchanged) and whether the
-    energy guard scaled the update down.
+    `(vel, scaled, exhausted)`: `[n, 2]` velocities (immovable bodies unchanged),
+    whether the energy guard scaled the update down, and whether a link that rubs
+    belongs to a unit the `depth` hops did not reach the end of (`DEPTH_EXHAUSTED`).
   """
   dtype = vel.dtype
   tangent = jnp.stack([vel[:, 1], vel[:, 1], vel[:, 0], vel[:, 0]])  # [4, n]
@@ -120,7 +125,10 @@ def friction(vel: jax.Array, front: geometry.Links, normal: jax.Array, coefficie
   # Energy guard, as for the normal impulses: friction may only take energy, beyond
   # what a moving platform gives through its links.
   scale = chain.energy_scale(vel, change, impulse, front, mass, mass == 0, tangent)
-  return vel + scale * change, lax.stop_gradient(scale < 1)
+  exhausted = jnp.zeros((), bool)
+  if short is not None:
+    exhausted = jnp.any(rubbing & (chain.behind(short) | front.gather(short)))
+  return vel + scale * change, lax.stop_gradient(scale < 1), lax.stop_gradient(exhausted)
 
 
 def _holding(front: geometry.Links, total: jax.Array, shared: jax.Array,
