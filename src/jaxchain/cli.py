@@ -412,7 +412,7 @@ def main(argv=None) -> int:
                       "(same answers; the demo takes no gradients; default on)")
   p.add_argument("--level", default=None, metavar="NAME|PATH",
                  help="run a level instead of the built-in scene: a shipped level "
-                      f"({', '.join(levels.names())}) or a .txt/.xsb/.tmj/.json file; the "
+                      f"({', '.join(levels.names())}) or a .txt/.xsb/.tmj/.json/.tmx file; the "
                       "player is pushed by --push and jumps when grounded")
   p.add_argument("--gif", default=None, metavar="PATH",
                  help="also write the rollout of the first --gif-worlds worlds to an animated "
