@@ -92,6 +92,7 @@ Title: Second
 Author: Someone
 Comment:
 a comment line: with a colon
+#### not a map row, inside a comment block
 Comment-End:
 
 

@@ -1,4 +1,5 @@
-"""Levels: Sokoban XSB and platformer ASCII maps, and Tiled JSON maps, as host arrays.
+"""Levels: Sokoban XSB and platformer ASCII maps, Sokoban collections, and Tiled maps
+(JSON and TMX), as host arrays.
 
 A `Level` holds one NumPy array per body field (`pos`, `half`, `mass`, `vel`,
 `friction`, `one_way`, `sensor`, `category`, `mask`), tags naming bodies ("player",
@@ -1500,8 +1501,9 @@ def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0
   The text is read line by line. A level is a run of consecutive map lines (lines
   whose first character after leading floor, spaces `-` `_`, is a wall `#`: every
   XSB row starts at the outer wall); a blank line or a text line ends it. Every other line is text: `; ...` comments,
-  `Title: ...`, `Author: ...`, `Comment:` ... `Comment-End:` blocks, a collection's
-  header. A level's title is, in this order: a `Title:` line in the paragraph
+  `Title: ...`, `Author: ...`, `Comment:` ... `Comment-End:` blocks (text whatever
+  their lines look like), a collection's header. Only titles are kept (as the
+  levels' names); authors and comments are not read into the `Level`s. A level's title is, in this order: a `Title:` line in the paragraph
   right after its map (the text lines up to the next blank line) or in the last
   paragraph before it; else the first `;` comment of that paragraph before it
   (`; 12 'Lockdown'` gives "12 'Lockdown'"); else its first plain text line; else
@@ -1545,8 +1547,16 @@ def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0
   source = source or name or "<xsb>"
   table = _legend(legend)
   lines = [line.rstrip("\r") for line in text.split("\n")]
-  kinds = ["blank" if not line.strip() else "map" if _is_map_row(line, table) else "text"
-           for line in lines]
+  kinds, in_comment = [], False
+  for line in lines:
+    key = line.strip().lower()
+    if in_comment or key.startswith("comment:") or key.startswith("comment-end:"):
+      # A Comment: ... Comment-End: block is text, whatever its lines look like.
+      in_comment = (in_comment or (key.startswith("comment:") and not key[8:].strip())) and \
+          not key.startswith("comment-end:")
+      kinds.append("text")
+    else:
+      kinds.append("blank" if not key else "map" if _is_map_row(line, table) else "text")
   maps = []  # (first line, last line), 0-based, inclusive
   k = 0
   while k < len(lines):
