@@ -31,3 +31,47 @@ def test_check_reports_each_bit_and_unknown_bits():
       f"world 0: {status.MESSAGES[status.CELL_OVERFLOW]}",
       f"world 0: {status.MESSAGES[status.NON_FINITE]}",
       "world 0: unknown status bits 0x100000"]
+
+
+def test_motion_rounded_away_far_from_the_origin_is_flagged():
+  # Issue 24 item 3: float32 at x = 1e5 steps by 0.0078, so a body at 0.1 u/s (0.0017
+  # a step at 60 Hz) goes nowhere. The step says so instead of silently standing still.
+  def run(x, speed):
+    w = jc.World.create([[x, 0.0]], [0.5, 0.5], 1.0, vel=[[speed, 0.0]], gravity=(0.0, 0.0))
+    final, _ = jc.rollout(w, jc.Config.for_world(w), 60)
+    return float(final.pos[0, 0]) - x, int(final.status)
+
+  moved, code = run(1e5, 0.1)
+  assert moved == 0.0 and code == status.PRECISION_LOST
+  assert any("recentre" in line for line in jc.check(jc.World.create(
+      [[0.0, 0.0]], [0.5, 0.5], 1.0).replace(status=np.int32(code))))
+  moved, code = run(1.0, 0.1)  # Near the origin the same motion is kept.
+  assert abs(moved - 0.1) < 1e-5 and code == 0
+  assert run(1e5, 1.0)[1] == 0  # 0.0167 a step: above the spacing, it moves.
+  assert run(1e5, 0.0)[1] == 0  # At rest: nothing to lose.
+  assert run(1e5, 5e-4)[1] == 0  # Below velocity.STICK: counted as rest.
+
+
+def test_a_switched_off_feature_in_use_names_itself():
+  # Issue 24 item 4: a world that outgrew its Config (a trigger added after
+  # Config.for_world, say) sets SWITCHED_OFF and the bit naming the feature.
+  base = jc.World.create([[0.0, 0.5], [3.0, 0.5], [1.5, -0.5]], [[0.5, 0.5], [0.5, 0.5],
+                         [5.0, 0.5]], [1.0, 1.0, 2.0], gravity=(0.0, 0.0))
+  cfg = jc.Config.for_world(base)
+  assert int(jc.step(base, cfg).status) == 0
+  grown = {
+      status.FRICTION_OFF: base.replace(friction=jnp.full(3, 0.5)),
+      status.GRAVITY_OFF: base.replace(gravity=jnp.array([0.0, -9.81])),
+      status.IMMOVABLE_OFF: base.replace(inv_mass=jnp.array([1.0, 1.0, 0.0])),
+      status.ONE_WAY_OFF: base.replace(one_way=jnp.array([False, False, True])),
+      status.SENSORS_OFF: base.replace(sensor=jnp.array([False, True, False])),
+      status.LAYERS_OFF: base.replace(mask=jnp.array([1, 0, 1], jnp.uint32)),
+  }
+  for bit, world in grown.items():
+    code = int(jc.step(world, cfg).status)
+    assert code == bit | status.SWITCHED_OFF, (bit.name, status.Status(code))
+    assert f"world 0: {bit.message}" in jc.check(world.replace(status=np.int32(code)))
+  # `resolve` uses neither friction nor gravity: those are not in use there.
+  assert int(jc.resolve(grown[status.FRICTION_OFF], cfg).status) == 0
+  assert int(jc.resolve(grown[status.SENSORS_OFF], cfg).status) == (
+      status.SENSORS_OFF | status.SWITCHED_OFF)

@@ -61,7 +61,8 @@ class Config:
       `False` treats sensors as solid bodies and leaves `sensed` False.
       `for_world` switches each of these three off when no world of the batch uses
       it, and a world that uses one its config leaves out sets
-      `status.SWITCHED_OFF`.
+      `status.SWITCHED_OFF` and the bit naming it (`ONE_WAY_OFF`, `LAYERS_OFF`,
+      `SENSORS_OFF`).
     converge: forward-only mode: every hop loop stops as soon as a hop changes
       nothing (a `while_loop`; under `vmap`, once every world in the batch has), with
       the same answer as `depth` hops, bit for bit. Faster when chains are shorter

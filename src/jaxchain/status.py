@@ -35,6 +35,13 @@ class Status(enum.IntFlag):
   IMPULSES_SCALED = 1 << 9
   NEIGHBOR_OVERFLOW = 1 << 10
   NEIGHBOR_MARGIN = 1 << 11
+  PRECISION_LOST = 1 << 12
+  FRICTION_OFF = 1 << 13
+  GRAVITY_OFF = 1 << 14
+  IMMOVABLE_OFF = 1 << 15
+  ONE_WAY_OFF = 1 << 16
+  SENSORS_OFF = 1 << 17
+  LAYERS_OFF = 1 << 18
 
   @property
   def message(self) -> str:
@@ -55,6 +62,13 @@ CRUSHED = Status.CRUSHED
 IMPULSES_SCALED = Status.IMPULSES_SCALED
 NEIGHBOR_OVERFLOW = Status.NEIGHBOR_OVERFLOW
 NEIGHBOR_MARGIN = Status.NEIGHBOR_MARGIN
+PRECISION_LOST = Status.PRECISION_LOST
+FRICTION_OFF = Status.FRICTION_OFF
+GRAVITY_OFF = Status.GRAVITY_OFF
+IMMOVABLE_OFF = Status.IMMOVABLE_OFF
+ONE_WAY_OFF = Status.ONE_WAY_OFF
+SENSORS_OFF = Status.SENSORS_OFF
+LAYERS_OFF = Status.LAYERS_OFF
 
 # Every bit's message, in bit order (the order `check` reports them in).
 MESSAGES = {
@@ -71,15 +85,15 @@ MESSAGES = {
                 "gravity); check inputs: accelerations, dt, coordinates far beyond float "
                 "precision, values set inside traced code",
     DEPTH_EXHAUSTED: "a chain was longer than Config.depth could resolve in the last pass; "
-                     "penetration may be left (raise depth or iterations)",
+                     "penetration may be left, or a push, impact or friction not carried "
+                     "through the whole chain (wrong velocities): raise depth (or iterations)",
     FAST_BODY: "a body moved farther in one substep than it and the thinnest body are thick, "
                "so it may have passed through something (raise Config.substeps)",
     LINK_OVERFLOW: "a body had more links in one direction than Config.links keeps; the "
                    "extra ones were ignored in that pass or in friction (raise links, set it to None, or "
                    "re-run Config.for_world on the current world)",
-    SWITCHED_OFF: "the World sets friction or gravity values (or holds immovable bodies) that "
-                  "the Config switched off (Config.friction / Config.gravity / Config.immovable "
-                  "is False); they were ignored: use Config.for_world or switch them on",
+    SWITCHED_OFF: "the World uses a feature the Config switched off (the *_OFF bit beside "
+                  "this one names it); use Config.for_world on this world or switch it on",
     CRUSHED: "a movable body was squeezed between units that lean on immovable bodies on "
              "opposite sides (world.crushed says which); its overlap was split in half and "
              "it took the mean velocity of what crushes it",
@@ -94,6 +108,24 @@ MESSAGES = {
                      "neighbour table's build and a pass or the sensors that read it; contacts "
                      "may have been missed (re-run Config.for_world on the current world, or "
                      "raise margin or substeps)",
+    PRECISION_LOST: "a body moving faster than 1e-3 units/s moved less in a substep than the "
+                    "float spacing of its coordinate (far from the origin: at x = 1e5 float32 "
+                    "steps by 0.0078), so its motion was rounded away; recentre the world near "
+                    "the origin, or use float64 (jax_enable_x64)",
+    FRICTION_OFF: "the World sets friction coefficients > 0 but Config.friction is off: they "
+                  "were ignored (use Config.for_world, or friction=True)",
+    GRAVITY_OFF: "the World sets gravity on movable bodies but Config.gravity is off: it was "
+                 "ignored (use Config.for_world, or gravity=True)",
+    IMMOVABLE_OFF: "the World holds immovable bodies (mass inf) but Config.immovable is off: "
+                   "they were treated as movable in the chains (use Config.for_world, or "
+                   "immovable=True)",
+    ONE_WAY_OFF: "the World has one-way bodies (World.one_way) but Config.one_way is off: they "
+                 "blocked from every side (use Config.for_world, or one_way=True)",
+    SENSORS_OFF: "the World has sensors (World.sensor) but Config.sensors is off: they acted "
+                 "as solid bodies and sensed nothing (use Config.for_world, or sensors=True)",
+    LAYERS_OFF: "the World's collision layers keep some bodies apart (category/mask) but "
+                "Config.layers is off: every pair collided (use Config.for_world, or "
+                "layers=True)",
 }
 
 

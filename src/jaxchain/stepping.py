@@ -196,24 +196,29 @@ def _crushed_code(crushed: jax.Array) -> jax.Array:
 
 
 def _switched_off(world: World, config: Config, physics: bool = True) -> jax.Array:
-  """`SWITCHED_OFF` when the world sets values the config leaves out of the step
-  (`resolve`, with `physics=False`, uses neither friction nor gravity)."""
-  off = jnp.zeros((), bool)
+  """`SWITCHED_OFF` and the bit naming each feature when the world uses what the config
+  leaves out of the step (`FRICTION_OFF`, ..., `LAYERS_OFF`; `resolve`, with
+  `physics=False`, uses neither friction nor gravity)."""
+  used = []
   if physics and not config.has_friction:
-    off = off | jnp.any(world.active & (world.friction > 0))
+    used.append((status.FRICTION_OFF, jnp.any(world.active & (world.friction > 0))))
   if physics and not config.has_gravity:
-    off = off | (jnp.any(world.gravity != 0) & jnp.any(world.movable))
+    used.append((status.GRAVITY_OFF, jnp.any(world.gravity != 0) & jnp.any(world.movable)))
   if not config.immovable:
-    off = off | jnp.any(world.active & (world.inv_mass == 0))
+    used.append((status.IMMOVABLE_OFF, jnp.any(world.active & (world.inv_mass == 0))))
   if not config.one_way:
-    off = off | jnp.any(world.active & world.one_way)
+    used.append((status.ONE_WAY_OFF, jnp.any(world.active & world.one_way)))
   if not config.sensors:
-    off = off | jnp.any(world.active & world.sensor)
+    used.append((status.SENSORS_OFF, jnp.any(world.active & world.sensor)))
   if not config.layers:  # As `sizing.uses_layers`: some mask misses a present layer.
     category = jnp.where(world.active, world.category, jnp.zeros_like(world.category))
     present = jnp.bitwise_or.reduce(category)
-    off = off | jnp.any(world.active & ((category == 0) | ((world.mask & present) != present)))
-  return jnp.where(off, status.SWITCHED_OFF, 0)
+    used.append((status.LAYERS_OFF, jnp.any(
+        world.active & ((category == 0) | ((world.mask & present) != present)))))
+  code = jnp.zeros((), jnp.int32)
+  for bit, on in used:
+    code = code | jnp.where(on, bit | status.SWITCHED_OFF, 0)
+  return code
 
 
 def _substep(world: World, config: Config, sub_dt: float, accel: jax.Array | None) -> World:
@@ -225,7 +230,9 @@ def _substep(world: World, config: Config, sub_dt: float, accel: jax.Array | Non
   if config.has_gravity:
     vel = vel + jnp.where(world.movable[:, None], world.gravity[None] * sub_dt, 0.0)
   code = jnp.where(_too_fast(world, vel, sub_dt), status.FAST_BODY, 0)
-  predicted = world.pos + jnp.where(world.active[:, None], vel * sub_dt, 0.0)
+  motion = jnp.where(world.active[:, None], vel * sub_dt, 0.0)
+  code = code | jnp.where(_motion_lost(world.pos, vel, motion), status.PRECISION_LOST, 0)
+  predicted = world.pos + motion
   table = broadphase.build(predicted, world, config, world.pos)  # None without neighbors.
   pos, vel, found, crushed, touching = _passes(world, predicted, config, start=world.pos, vel=vel,
                                                table=table)
@@ -237,6 +244,16 @@ def _substep(world: World, config: Config, sub_dt: float, accel: jax.Array | Non
   return dataclasses.replace(world, pos=pos, vel=vel, crushed=world.crushed | crushed,
                              touching=world.touching | touching.T, sensed=world.sensed | sensed,
                              status=world.status | code)
+
+
+def _motion_lost(pos: jax.Array, vel: jax.Array, motion: jax.Array) -> jax.Array:
+  """Whether a body moving faster than `velocity.STICK` (below it the library already
+  treats bodies as at rest relative to each other) moves, in this substep, less than
+  the float spacing of its coordinate: its motion rounds away (float32 at x = 1e5
+  steps by 0.0078, so 0.1 units/s goes nowhere at 60 steps a second)."""
+  pos, vel, motion = (lax.stop_gradient(x) for x in (pos, vel, motion))  # A report only.
+  lost = (jnp.abs(vel) > velocity.STICK) & (jnp.abs(motion) < jnp.spacing(jnp.abs(pos)))
+  return jnp.any(lost)
 
 
 def _too_fast(world: World, vel: jax.Array, sub_dt: float) -> jax.Array:
