@@ -7,6 +7,7 @@ reads the maps on its own, not through `jaxchain.levels`.
 """
 
 import functools
+import math
 import pathlib
 
 import jax
@@ -237,3 +238,43 @@ def test_sokoban_moves_checks_its_setting():
     jc.env.SokobanMoves(repeat=1)
   with pytest.raises(ValueError, match=r"cell must be a number > 0"):
     jc.env.SokobanMoves(cell=0)
+
+
+def test_without_the_controller_the_physics_breaks_the_push_rule():
+  # Why SokobanMoves is a controller (docs/levels.md): the player driven one cell into a
+  # box with a box behind it (no wall near) moves both boxes, and nobody lands on a cell.
+  world = jc.World.create(pos=[[0.5, 0.5], [1.5, 0.5], [2.5, 0.5], [6.5, 0.5]],
+                          half=[[0.4, 0.4], [0.45, 0.45], [0.45, 0.45], [0.5, 0.5]],
+                          mass=[1.0, 1.0, 1.0, math.inf], gravity=(0.0, 0.0))
+  config = jc.Config.for_world(world, dt=1 / 64)
+  for k in range(5):  # Four quarter-cell steps at 16 units/s, then a stop.
+    speed = 16.0 if k < 4 else 0.0
+    world = jc.step(world, config, jnp.zeros((4, 2)).at[0, 0].set((speed - world.vel[0, 0]) * 64))
+  assert world.pos[2, 0] > 2.5 + 0.25  # The second box moved: Sokoban forbids it.
+  assert abs(float(world.pos[0, 0]) - 1.5) > 0.1  # The player is not on its cell.
+  assert world.vel[1, 0] > 1.0  # The first box keeps sliding.
+
+
+def test_sokoban_moves_with_dt_1_60_land_on_cells_within_rounding():
+  rows, moves = _microban_maps()[0], levels.parse_moves(_solutions()[0])
+  task = jc.env.Task(name="m1", levels=levels.load_collection(MICROBAN)[:1],
+                     actions=jc.env.SokobanMoves(), reward=jc.env.push_reward,
+                     terminate=jc.env.sokoban_terminate,
+                     params=jc.env.PushBoxParams(jitter=0.0))
+  env, params = jc.env.make(task)  # dt = 1/60: not a power of two.
+  assert env.config.dt == 1 / 60
+  key = jax.random.key(0)
+
+  def replay(acts):
+    def body(state, action):
+      _, state, _, done, info = env.step_env(key, state, action, params)
+      return state, (state.world.pos[0], info["success"])
+    return jax.lax.scan(body, env.reset_level(key, params, 0), acts)
+
+  state, (path, success) = jax.jit(replay)(jnp.asarray([ACTION[m] for m in moves], jnp.int32))
+  want, boxes, goals = _grid_replay(rows, moves)
+  np.testing.assert_allclose(np.asarray(path), want, rtol=0, atol=1e-5)
+  box = env.slots_of("box")
+  got = np.asarray(state.world.pos[box][np.asarray(state.world.active[box])])
+  np.testing.assert_allclose(sorted(map(tuple, got.tolist())), goals, rtol=0, atol=1e-5)
+  assert boxes == goals and bool(success[-1]) and not np.asarray(success[:-1]).any()
