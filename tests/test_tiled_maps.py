@@ -363,3 +363,17 @@ def test_template_instances_override_the_template(tmp_path):
   with pytest.raises(ValueError, match=r"n.tmx, layer 'o', object 9: template 'crate.tx' uses a "
                                        r"tile of a tileset the map does not hold"):
     levels.load(tmp_path / "n.tmx")
+
+
+def test_shipped_platformer2_loads_as_before_the_solid_rule():
+  # Its `ground` layer now says solid=true (its `background` layer already said false):
+  # the same 11 bodies as under the old rule, the ground merged into 4 walls and 3
+  # one-way ledges, no warning.
+  with warnings.catch_warnings():
+    warnings.simplefilter("error")
+    lv = levels.load("platformer2")
+  assert {k: len(v) for k, v in lv.tags.items()} == {
+      "ground": 7, "ledge": 3, "actors": 4, "hero": 1, "player": 1, "crate": 2, "box": 2,
+      "flag": 1}
+  ground = list(lv.tags["ground"])
+  assert lv.one_way[ground].sum() == 3 and lv.bounds == (0.0, 0.0, 16.0, 10.0)
