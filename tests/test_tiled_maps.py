@@ -23,7 +23,6 @@ from jaxchain import levels
 
 TILED = pathlib.Path(__file__).parent / "data" / "tiled"
 EXAMPLES = TILED / "tiled-examples"
-PHASER = TILED / "phaser"
 DECORATIVE = r"tile layers are decorative unless marked solid"
 SOLID = {"name": "solid", "type": "bool", "value": True}
 
@@ -74,8 +73,6 @@ def _assert_covers_exactly(lv, tag, gids):
     (EXAMPLES / "sewers.tmx", ["Bottom", "Top"]),
     (EXAMPLES / "perspective_walls.tmx", ["Walls", "Walls level 2", "Walls level 3"]),
     (EXAMPLES / "rpg" / "island.tmx", ["Ground", "Fringe", "Over"]),
-    (PHASER / "simple-map.json", ["Tile Layer 1"]),
-    (PHASER / "tile_properties.json", ["Tile Layer 1"]),
 ])
 def test_real_maps_load_with_their_tile_layers_decorative(path, layers):
   # None of these maps says `solid` anywhere, so their tile layers make no bodies and
@@ -97,7 +94,6 @@ def test_real_maps_load_with_their_tile_layers_decorative(path, layers):
     (EXAMPLES / "sewers.tmx", "Top", 30, None),  # Gzip, a sparse layer.
     (EXAMPLES / "perspective_walls.tmx", "Walls", 77, None),  # Zlib, external .tsx.
     (EXAMPLES / "rpg" / "island.tmx", "Over", 69, None),
-    (PHASER / "simple-map.json", "Tile Layer 1", 400, 1),  # A CSV array; full.
 ])
 def test_real_tile_layers_marked_solid_cover_exactly_their_tiles(path, layer, tiles, bodies):
   if path.suffix == ".tmx":
