@@ -6,7 +6,9 @@ in NumPy, and the single env passes Gymnasium's own checker. Tasks are tiny
 (`max_steps` of a few steps) so episodes end inside a test.
 """
 
+import copy
 import doctest
+import pickle
 import subprocess
 import sys
 import warnings
@@ -199,20 +201,24 @@ def test_vector_env_is_the_vmapped_step(vector_pair):
   again, _ = venv.reset(seed=5)
   np.testing.assert_array_equal(obs, again)
   actions = np.tile(np.array([[0.8, -0.2]], np.float32), (3, 1))
-  # The reference: the same keys through jaxchain directly.
-  key = jax.random.key(5)
-  key, k = jax.random.split(key)
-  ref_obs, ref_state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(k, 3), params)
+  # The reference: the same keys through jaxchain directly. Env i is seeded with 5 + i
+  # (SyncVectorEnv's rule); its key splits as a GymnasiumEnv's does.
+  split = jax.vmap(jax.random.split)
+  pair = split(jnp.stack([jax.random.key(5 + i) for i in range(3)]))
+  keys = pair[:, 0]
+  ref_obs, ref_state = jax.vmap(env.reset, in_axes=(0, None))(pair[:, 1], params)
   np.testing.assert_array_equal(obs, ref_obs)
   step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
   for t in range(MAX_STEPS):
     obs, reward, terminated, truncated, info = venv.step(actions)
-    key, k = jax.random.split(key)
-    ref_obs, ref_state, ref_r, ref_done, ref_info = step(jax.random.split(k, 3), ref_state,
+    pair = split(keys)
+    keys = pair[:, 0]
+    ref_obs, ref_state, ref_r, ref_done, ref_info = step(pair[:, 1], ref_state,
                                                          jnp.asarray(actions), params)
     assert isinstance(reward, np.ndarray) and reward.shape == (3,)
+    assert reward.dtype == np.float64  # As gymnasium's SyncVectorEnv gives rewards.
     np.testing.assert_array_equal(obs, ref_obs)
-    np.testing.assert_array_equal(reward, ref_r)
+    np.testing.assert_array_equal(reward, np.asarray(ref_r, np.float64))
     np.testing.assert_array_equal(terminated | truncated, ref_done)
     np.testing.assert_array_equal(info["episode_return"], ref_info["episode_return"])
     assert info["_success"].all()
@@ -246,3 +252,114 @@ def test_bad_arguments():
     bridges.GymnasiumVectorEnv("push_box_easy", num_envs=0)
   with pytest.raises(ValueError, match="render_mode"):
     bridges.GymnasiumEnv(env, params, render_mode="human")
+
+
+def test_vector_env_seeds_each_env_like_a_single_env(vector_pair):
+  """`reset(seed=[a, b, c])` gives env i the single env's episode under seed i (its
+  reset and every step's key), as SyncVectorEnv over GymnasiumEnvs would; a None keeps
+  that env's own key; `reset_mask` resets only the masked envs."""
+  env, params, venv = vector_pair
+  seeds = [11, 3, 7]
+  obs, _ = venv.reset(seed=seeds)
+  singles = [bridges.GymnasiumEnv(env, params) for _ in seeds]
+  firsts = [s.reset(seed=seed)[0] for s, seed in zip(singles, seeds)]
+  np.testing.assert_array_equal(obs, np.stack(firsts))
+  assert not np.array_equal(obs[0], obs[1])  # The seeds differ, and so do the starts.
+  rng = np.random.default_rng(0)
+  for t in range(MAX_STEPS - 1):  # Before the step limit: no auto-reset yet.
+    actions = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
+    obs, reward, *_ = venv.step(actions)
+    for i, single in enumerate(singles):
+      o, r, *_ = single.step(actions[i])
+      np.testing.assert_array_equal(obs[i], o)
+      assert reward[i] == r
+  # A None goes on from that env's key: the same as not reseeding it.
+  a, _ = venv.reset(seed=[11, None, 7])
+  b, _ = venv.reset(seed=[11, 3, 7])
+  np.testing.assert_array_equal(a[[0, 2]], b[[0, 2]])
+  # reset_mask: env 1 restarts, envs 0 and 2 keep their observation.
+  obs, *_ = venv.step(np.zeros((3, 2), np.float32))
+  again, _ = venv.reset(seed=[0, 3, 0], options={"reset_mask": np.array([False, True, False])})
+  np.testing.assert_array_equal(again[[0, 2]], obs[[0, 2]])
+  np.testing.assert_array_equal(again[1], b[1])
+  with pytest.raises(ValueError, match="a list of 3 seeds"):
+    venv.reset(seed=[1, 2])
+  with pytest.raises(ValueError, match="unknown options"):
+    venv.reset(options={"level": 2})
+  with pytest.raises(ValueError, match="reset_mask"):
+    venv.reset(options={"reset_mask": np.zeros(3, bool)})
+
+
+def test_vector_env_call_get_attr_set_attr(vector_pair):
+  env, params, venv = vector_pair
+  assert venv.get_attr("level_names") == (env.level_names,) * 3
+  assert venv.get_attr("action_space") == (venv.single_action_space,) * 3
+  assert venv.get_attr("render_mode") == (None,) * 3
+  assert venv.call("obs_size") == (env.obs_size,) * 3
+  assert venv.call("action_space") == (venv.single_action_space,) * 3
+  # A method of the jaxchain env, called per env with the arguments.
+  spaces = venv.call("observation_space", params)
+  assert len(spaces) == 3 and spaces[0].shape == (env.obs_size,)
+  assert venv.call("render") == (None,) * 3  # No render mode: no frames.
+  with pytest.raises(AttributeError, match="no attribute 'nope'"):
+    venv.get_attr("nope")
+  # params for all envs alike; a different value per env, or another attribute, refused.
+  longer = params.replace(max_steps=MAX_STEPS + 2)
+  venv.set_attr("params", longer)
+  assert venv.params is longer
+  venv.set_attr("params", [params] * 3)
+  assert venv.params is params
+  with pytest.raises(ValueError, match="one value for all 3 envs"):
+    venv.set_attr("params", [params, longer, params])
+  with pytest.raises(AttributeError, match="cannot set 'env'"):
+    venv.set_attr("env", env)
+  with pytest.raises(ValueError, match="render_mode"):
+    venv.set_attr("render_mode", "human")
+
+
+# Copies: pickle and deepcopy (gymnax's Gym wrappers deep-copy the env they wrap).
+
+
+def _roundtrips(obj):
+  return [("deepcopy", copy.deepcopy(obj)), ("pickle", pickle.loads(pickle.dumps(obj)))]
+
+
+def test_copies_of_the_gymnasium_envs_step_like_the_original():
+  single = bridges.GymnasiumEnv("push_box_easy", max_steps=MAX_STEPS)
+  single.reset(seed=4)
+  vector = bridges.GymnasiumVectorEnv("push_box_easy", num_envs=2, max_steps=MAX_STEPS)
+  vector.reset(seed=4)
+  a = np.array([0.5, 0.5], np.float32)
+  copies = _roundtrips(single)
+  want = single.step(a)[0]
+  for name, copied in copies:
+    assert type(copied) is bridges.GymnasiumEnv, name
+    np.testing.assert_array_equal(copied.step(a)[0], want)
+  copies = _roundtrips(vector)
+  want = vector.step(np.ones((2, 2), np.float32))
+  for name, copied in copies:
+    assert type(copied) is bridges.GymnasiumVectorEnv, name
+    got = copied.step(np.ones((2, 2), np.float32))
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_gymnax_env_copies_and_gymnax_gym_wrapper(gymnax_pair):
+  """gymnax's own `GymnaxToGymWrapper` deep-copies the env; it then runs episodes."""
+  from gymnax.wrappers.gym import GymnaxToGymWrapper
+  env, params, genv = gymnax_pair
+  for name, copied in _roundtrips(genv):
+    assert type(copied) is bridges.GymnaxEnv, name
+    o1, _ = copied.reset(jax.random.key(0), params)
+    o2, _ = genv.reset(jax.random.key(0), params)
+    np.testing.assert_array_equal(o1, o2)
+  wrapped = GymnaxToGymWrapper(genv, params, seed=0)
+  obs, info = wrapped.reset(seed=1)
+  assert obs.shape == (env.obs_size,) and wrapped.action_space.shape == (2,)
+  ended = False
+  for _ in range(MAX_STEPS):
+    obs, reward, terminated, truncated, info = wrapped.step(jnp.array([1.0, 0.0], jnp.float32))
+    ended = ended or bool(terminated) or bool(truncated)
+  assert ended and np.isfinite(float(reward))
+  frame = np.asarray(wrapped.render())
+  assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[-1] == 3

@@ -29,10 +29,12 @@ def test_extra_packages_import():
 def test_bridge_classes_resolve():
   from gymnax.environments import environment
   from gymnasium.vector import VectorEnv
+  from stable_baselines3.common.vec_env import VecEnv
 
   from jaxchain import bridges
   assert issubclass(bridges.GymnaxEnv, environment.Environment)
   assert issubclass(bridges.GymnasiumVectorEnv, VectorEnv)
+  assert issubclass(bridges.SB3VecEnv, VecEnv)
 
 
 def _bridge_error(blocked: str, attribute: str) -> str:
@@ -64,6 +66,9 @@ def test_error_names_the_missing_package():
   message = _bridge_error("gymnax", "GymnaxEnv")
   assert message == ('jaxchain.bridges needs gymnax, which is not installed: '
                      'pip install "jaxchain[rl]"')
+  message = _bridge_error("stable_baselines3", "SB3VecEnv")
+  assert message == ('jaxchain.bridges needs stable_baselines3, which is not installed: '
+                     'pip install "jaxchain[sb3]"')
 
 
 def test_error_of_a_dependency_with_another_distribution_name():
