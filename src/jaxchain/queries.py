@@ -1,0 +1,653 @@
+"""Queries a game asks each frame, and kinematic character helpers.
+
+All pure functions of one `World` (use `jax.vmap` for a batch), jitted with their
+static arguments, with fixed output shapes and no Python loop over bodies:
+
+* `touching_bodies`: which bodies each body touches now, per direction (the contact
+  rule of `jc.step`, read as indices instead of flags);
+* `query_aabb`, `query_point`: which bodies a box or a point overlaps;
+* `raycast`: the nearest body a ray enters (`RayHit`);
+* `move_and_slide`: move one body as a kinematic character (Godot's
+  `CharacterBody2D.move_and_slide` for boxes), stopping flush at walls, floors and
+  ceilings (`SlideInfo`);
+* `drive_platforms`: set the velocity of kinematic platforms and carry what stands on
+  them (its riders, and what stands on those) by the change, with no friction needed;
+* `drop_through`: let a body standing on one-way platforms fall through them.
+
+Directions are those of `jaxchain.geometry.DIRECTIONS`: `0: +x, 1: -x, 2: +y, 3: -y`.
+The pair queries (`touching_bodies`, `drive_platforms`, `drop_through`) build dense
+pairs, O(n^2) per world, like the dense broadphase; the others are O(n).
+
+Host input is checked where it is concrete (a `ValueError` names the argument);
+traced input (inside `jit` or `vmap`) is not checked, and a bad value there gives a
+documented neutral answer instead (a zero ray direction hits nothing, say).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxchain import broadphase, flags, geometry
+from jaxchain.config import Config
+from jaxchain.world import World
+
+SKIN = Config().skin  # The step's default link tolerance: faces this close touch.
+# `drop_through` moves a body this fraction of the summed half-heights past the one-way
+# margin (`geometry.ONE_WAY_MARGIN`), so rounding cannot leave it inside the margin.
+DROP_EXTRA = 0.01
+
+
+def _check_single(world: World, fn: str) -> None:
+  if world.pos.ndim != 2:
+    raise ValueError(f"{fn}: expected a single world with pos of shape (n, 2), got "
+                     f"{world.pos.shape}; for a batch use jax.vmap({fn}, ...)")
+
+
+def _concrete(x) -> np.ndarray | None:
+  """`x` as a NumPy array if it is a concrete value, None if it is traced."""
+  if isinstance(x, jax.core.Tracer):
+    return None
+  try:
+    return np.asarray(x)
+  except (TypeError, ValueError):
+    return None
+
+
+def _vector(name: str, fn: str, x, dtype, finite: bool = True) -> jax.Array:
+  """A `[2]` float array; concrete input is checked for shape and finiteness."""
+  host = _concrete(x)
+  if host is not None:
+    if host.shape != (2,):
+      raise ValueError(f"{fn}: {name} must have shape (2,), got {host.shape}")
+    if host.dtype.kind not in "fiu" or host.dtype == bool:
+      raise ValueError(f"{fn}: {name} must be numbers, got {host.dtype}")
+    if finite and not np.all(np.isfinite(host)):
+      raise ValueError(f"{fn}: {name} must be finite, got {host.tolist()}")
+  return jnp.asarray(x, dtype)
+
+
+def _body_index(fn: str, world: World, body) -> jax.Array:
+  """A body index as an int32 scalar; a concrete one must name an active body."""
+  host = _concrete(body)
+  n = world.num_bodies
+  if host is not None:
+    if host.shape != () or host.dtype.kind not in "iu":
+      raise ValueError(f"{fn}: body must be one integer index, got {host.dtype} {host.shape}")
+    if not 0 <= int(host) < n:
+      raise ValueError(f"{fn}: body {int(host)} is not in [0, {n})")
+    active = _concrete(world.active)
+    if active is not None and not active[int(host)]:
+      raise ValueError(f"{fn}: body {int(host)} is inactive")
+  return jnp.asarray(body, jnp.int32)
+
+
+def _category_filter(fn: str, world: World, mask) -> jax.Array:
+  """`[n]` bool: `category & mask != 0` (all True without a mask)."""
+  if mask is None:
+    return jnp.ones(world.num_bodies, bool)
+  host = _concrete(mask)
+  if host is not None:
+    if host.shape != () or host.dtype.kind not in "iu" or not 0 <= int(host) <= 0xFFFFFFFF:
+      raise ValueError(f"{fn}: mask must be one integer in [0, 2**32) (layer bits), got {host!r}")
+    mask = np.uint32(int(host))
+  bits = jnp.asarray(mask, jnp.uint32)
+  return (world.category & bits) != jnp.zeros((), jnp.uint32)
+
+
+def _pair_contacts(world: World, skin: float) -> geometry.Contacts:
+  """The step's contacts of every pair of active, solid, layer-admitted bodies, at the
+  current positions and velocities (dense pairs, `[n, n]`; the one-way rule as in a pass,
+  reading `world.vel`)."""
+  cand = flags.admit(broadphase.dense(world.active), world, layers=True, sensors=True)
+  fixed = world.active & (world.inv_mass == 0)
+  ow = geometry.OneWay(one_way=world.active & world.one_way, solid=fixed & ~world.one_way,
+                       vel=world.vel)
+  return geometry.contacts(world.pos, world.half, cand, skin, one_way=ow)
+
+
+# --- touching_bodies --------------------------------------------------------------------
+
+
+def touching_bodies(world: World, *, k: int = 4, skin: float = SKIN
+                    ) -> tuple[jax.Array, jax.Array]:
+  """Which bodies each body touches now, per direction: `[n, 4, k]` indices.
+
+  Entry `(i, d, s)` is the s-th body (by index) that lies in direction d from body i
+  (`geometry.DIRECTIONS`: +x, -x, +y, -y) and touches it, or -1. "Touches" is the
+  contact rule of a pass of `jc.step` (`geometry.contacts`) at the current positions:
+  the pair's contact axis is the one of smaller overlap (ties x); along it the faces
+  are within `skin` or overlap, and along the other axis the boxes overlap strictly
+  (a corner contact is none). Only active, non-sensor pairs that collision layers admit
+  count (`category[i] & mask[j]` and `category[j] & mask[i]` both nonzero), and a pair
+  with a one-way body follows the one-way rule of the step (`geometry._one_way_rule`,
+  reading `world.vel`): a body resting on a one-way platform touches it downward (and
+  the platform touches the body upward), a body rising through it touches nothing.
+
+  So `touching_bodies(world)[0][:, 3, 0]` answers "what am I standing on". Unlike
+  `World.touching` (written by a step, movable bodies only), every body has rows,
+  immovable ones included (a platform's `+y` row lists its riders). The contact axes of
+  a step also read the motion of the step (time of impact, seams); at rest the two agree.
+
+  O(n^2): dense pairs, compacted with `geometry.first_set`.
+
+  Args:
+    world: a single world (`jax.vmap` it for a batch).
+    k: slots per body and direction (static).
+    skin: faces this close touch (static; the step's `Config.skin` by default).
+
+  Returns:
+    `(index, overflow)`: `[n, 4, k]` int32 body indices in increasing order, -1 for
+    none; `[n]` bool, body i touches more than `k` bodies in some direction (the first
+    `k` by index are listed).
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> w = jc.World.create([[0.0, -0.5], [0.0, 0.5], [0.0, 1.5]],
+    ...                     [[5.0, 0.5], [0.5, 0.5], [0.5, 0.5]], [float("inf"), 1.0, 1.0])
+    >>> index, overflow = jc.touching_bodies(w, k=2)
+    >>> index[:, 3, 0].tolist(), index[0, 2].tolist(), bool(overflow.any())
+    ([-1, 0, 1], [1, -1], False)
+  """
+  _check_single(world, "touching_bodies")
+  if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+    raise ValueError(f"touching_bodies: k must be an integer >= 1, got {k!r}")
+  if not (isinstance(skin, (int, float, np.floating)) and np.isfinite(skin) and skin >= 0):
+    raise ValueError(f"touching_bodies: skin must be a finite number >= 0, got {skin!r}")
+  return _touching_bodies(world, int(k), float(skin))
+
+
+@functools.partial(jax.jit, static_argnames=("k", "skin"))
+def _touching_bodies(world: World, k: int, skin: float) -> tuple[jax.Array, jax.Array]:
+  n = world.num_bodies
+  if n == 0:
+    return jnp.zeros((0, 4, k), jnp.int32), jnp.zeros((0,), bool)
+  sel = geometry.by_direction(_pair_contacts(world, skin))  # [4, n, n]
+  slot, valid, _ = geometry.first_set(sel, k)  # [k, 4, n]
+  index = jnp.where(valid, slot, -1).astype(jnp.int32)
+  overflow = jnp.any(jnp.sum(sel, axis=-1) > k, axis=0)
+  return jnp.transpose(index, (2, 1, 0)), overflow
+
+
+# --- query_aabb, query_point -------------------------------------------------------------
+
+
+def query_aabb(world: World, lo, hi, *, mask=None) -> jax.Array:
+  """Which active bodies overlap or touch the box `[lo, hi]`: `[n]` bool.
+
+  Closed boxes (Box2D's `b2AABB_Overlaps`): a body whose face lies on the query box's
+  face counts. For strict overlap, shrink the query box by a small amount. Sensors
+  count like any body (`& ~world.sensor` leaves them out).
+
+  Args:
+    world: a single world.
+    lo, hi: `[2]` lower-left and upper-right corners, `lo <= hi`.
+    mask: optional uint32 layer bits: only bodies with `category & mask != 0` (Box2D's
+      query filter).
+
+  Returns:
+    `[n]` bool. Under `jit`, a box with `lo > hi` along an axis finds nothing.
+
+  Raises:
+    ValueError: for concrete corners that are not `[2]` finite numbers, `lo > hi`, or a
+      mask that is not an integer in `[0, 2**32)`.
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> w = jc.World.create([[0.0, 0.0], [2.0, 0.0]], [0.5, 0.5], 1.0)
+    >>> jc.query_aabb(w, [0.5, -0.1], [1.0, 0.1]).tolist()  # touches body 0's face
+    [True, False]
+  """
+  _check_single(world, "query_aabb")
+  dtype = world.pos.dtype
+  lo, hi = _vector("lo", "query_aabb", lo, dtype), _vector("hi", "query_aabb", hi, dtype)
+  host_lo, host_hi = _concrete(lo), _concrete(hi)
+  if host_lo is not None and host_hi is not None and np.any(host_lo > host_hi):
+    raise ValueError(f"query_aabb: lo must be <= hi on both axes, got lo {host_lo.tolist()}, "
+                     f"hi {host_hi.tolist()}")
+  return _query_aabb(world, lo, hi, _category_filter("query_aabb", world, mask))
+
+
+@jax.jit
+def _query_aabb(world: World, lo: jax.Array, hi: jax.Array, admitted: jax.Array) -> jax.Array:
+  low, high = world.pos - world.half, world.pos + world.half
+  inside = jnp.all((low <= hi[None]) & (lo[None] <= high), axis=-1)
+  return world.active & admitted & inside
+
+
+def query_point(world: World, point, *, mask=None) -> jax.Array:
+  """Which active bodies contain `point` (boundary included): `[n]` bool.
+
+  Args:
+    world: a single world.
+    point: `[2]`.
+    mask: optional uint32 layer bits (see `query_aabb`).
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> w = jc.World.create([[0.0, 0.0], [1.0, 0.0]], [0.5, 0.5], 1.0)
+    >>> jc.query_point(w, [0.5, 0.0]).tolist(), jc.query_point(w, [0.2, 0.6]).tolist()
+    ([True, True], [False, False])
+  """
+  _check_single(world, "query_point")
+  p = _vector("point", "query_point", point, world.pos.dtype)
+  return _query_aabb(world, p, p, _category_filter("query_point", world, mask))
+
+
+# --- raycast -----------------------------------------------------------------------------
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class RayHit:
+  """The nearest body a ray enters (`raycast`); with a batch, each field gains its axes.
+
+  Attributes:
+    hit: `[]` bool, whether the ray entered a body within `max_distance`.
+    body: `[]` int32, the body, or -1.
+    distance: `[]` float, distance from the origin to the entry point in world units
+      (along the unit direction); `max_distance` when nothing was hit.
+    point: `[2]` float, the entry point (the face coordinate exactly along the normal's
+      axis); the origin when nothing was hit.
+    normal: `[2]` float, the outward normal of the face entered (`(-1, 0)` for the left
+      face, ...); zero when nothing was hit.
+  """
+
+  hit: jax.Array
+  body: jax.Array
+  distance: jax.Array
+  point: jax.Array
+  normal: jax.Array
+
+
+def raycast(world: World, origin, direction, max_distance=float("inf"), *, mask=None,
+            ignore=None) -> RayHit:
+  """The nearest active, non-sensor body the ray `origin + t * direction` enters.
+
+  The slab method on every body: the ray enters a box at the latest of its per-axis
+  entry times and leaves it at the earliest exit; it hits when it enters before it
+  leaves (strictly: a ray that only grazes a corner, or runs along a face, hits
+  nothing) at a distance in `[0, max_distance]`. A body that contains the origin is
+  ignored (Box2D's rule: a ray starting inside a box does not hit it, so a character
+  can cast from its own centre); a ray starting on a face and pointing into the box
+  hits it at distance 0. The nearest hit wins, ties to the lower index.
+
+  Distances are in world units: `direction` is normalised first. Gradient-safe: the
+  distance and point of a hit are differentiable in `origin`, `direction` and the
+  bodies' positions and sizes, also for axis-aligned rays (a direction component of
+  0 takes no division; the normalisation is guarded: `chain.safe_divide`'s double
+  `where`).
+
+  Args:
+    world: a single world.
+    origin: `[2]`.
+    direction: `[2]`, nonzero (any length).
+    max_distance: how far the ray reaches, `>= 0` (default inf).
+    mask: optional uint32 layer bits: only bodies with `category & mask != 0`.
+    ignore: optional body index, or `[n]` bool mask, of bodies to skip (the caster).
+
+  Returns:
+    A `RayHit`. Under `jit` a zero direction hits nothing.
+
+  Raises:
+    ValueError: for concrete input that is not `[2]` finite numbers, a zero direction,
+      a negative or NaN `max_distance`, or a bad mask or ignore.
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> w = jc.World.create([[0.0, 0.0], [3.0, 0.0], [5.0, 0.0]], [0.5, 0.5], 1.0)
+    >>> r = jc.raycast(w, [0.0, 0.2], [2.0, 0.0])  # from inside body 0: it is ignored
+    >>> bool(r.hit), int(r.body), float(r.distance), r.point.tolist(), r.normal.tolist()
+    (True, 1, 2.5, [2.5, 0.20000000298023224], [-1.0, 0.0])
+  """
+  _check_single(world, "raycast")
+  dtype = world.pos.dtype
+  origin = _vector("origin", "raycast", origin, dtype)
+  direction = _vector("direction", "raycast", direction, dtype)
+  host = _concrete(direction)
+  if host is not None and not np.any(host != 0):
+    raise ValueError("raycast: direction must be nonzero, got [0, 0]")
+  host = _concrete(max_distance)
+  if host is not None and (host.shape != () or np.isnan(host) or host < 0):
+    raise ValueError(f"raycast: max_distance must be a number >= 0 (inf for no limit), got "
+                     f"{max_distance!r}")
+  admitted = _category_filter("raycast", world, mask)
+  if ignore is not None:
+    host = _concrete(ignore)
+    n = world.num_bodies
+    if host is not None:
+      ok = (host.shape == () and host.dtype.kind in "iu" and 0 <= int(host) < n) or (
+          host.shape == (n,) and host.dtype == bool)
+      if not ok:
+        raise ValueError(f"raycast: ignore must be a body index in [0, {n}) or a bool mask of "
+                         f"shape ({n},), got {host.dtype} {host.shape}")
+    ignore = jnp.asarray(ignore)
+    skip = (jnp.arange(n) == ignore) if ignore.ndim == 0 else ignore
+    admitted = admitted & ~skip
+  return _raycast(world, origin, direction, jnp.asarray(max_distance, dtype), admitted)
+
+
+@jax.jit
+def _raycast(world: World, origin: jax.Array, direction: jax.Array, max_distance: jax.Array,
+             admitted: jax.Array) -> RayHit:
+  sq = jnp.sum(direction * direction)
+  ok = sq > 0
+  norm = jnp.sqrt(jnp.where(ok, sq, 1.0))  # Guarded: no NaN gradient at a zero direction.
+  u = jnp.where(ok, direction / norm, 0.0)
+  moving = u != 0  # [2]
+  inv = jnp.where(moving, 1.0 / jnp.where(moving, u, 1.0), 0.0)
+  low, high = world.pos - world.half, world.pos + world.half  # [n, 2]
+  t1, t2 = (low - origin[None]) * inv[None], (high - origin[None]) * inv[None]
+  enter_k = jnp.where(moving[None], jnp.minimum(t1, t2), -jnp.inf)
+  leave_k = jnp.where(moving[None], jnp.maximum(t1, t2), jnp.inf)
+  # Along an axis the ray does not move, it must lie strictly inside the slab.
+  in_slab = jnp.where(moving[None], True, (origin[None] > low) & (origin[None] < high))
+  enter, leave = jnp.max(enter_k, axis=-1), jnp.min(leave_k, axis=-1)
+  hits = (ok & world.active & ~world.sensor & admitted & jnp.all(in_slab, axis=-1)
+          & (enter >= 0) & (enter < leave) & (enter <= max_distance))
+  best = jnp.argmin(jnp.where(hits, enter, jnp.inf)).astype(jnp.int32)
+  hit = jnp.any(hits)
+  distance = jnp.where(hit, enter[best], max_distance)
+  axis = jnp.argmax(enter_k[best])  # The axis entered last (ties: x).
+  onehot = jnp.arange(2) == axis
+  face = jnp.where(u > 0, low[best], high[best])  # The face plane along each axis.
+  point = jnp.where(onehot, face, origin + jnp.where(hit, enter[best], 0.0) * u)
+  normal = jnp.where(onehot, -jnp.sign(u), 0.0)
+  return RayHit(hit=hit, body=jnp.where(hit, best, -1), distance=distance,
+                point=jnp.where(hit, point, origin), normal=jnp.where(hit, normal, 0.0))
+
+
+# --- move_and_slide ----------------------------------------------------------------------
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class SlideInfo:
+  """What `move_and_slide` ran into (scalars; a batch adds its axes).
+
+  Attributes:
+    on_floor: `[]` bool, the move along y went down and was stopped by a floor.
+    on_wall: `[]` bool, the move along x was stopped by a wall.
+    on_ceiling: `[]` bool, the move along y went up and was stopped by a ceiling.
+    hit_x: `[]` int32, the body that stopped the move along x, or -1.
+    hit_y: `[]` int32, the body that stopped the move along y, or -1.
+  """
+
+  on_floor: jax.Array
+  on_wall: jax.Array
+  on_ceiling: jax.Array
+  hit_x: jax.Array
+  hit_y: jax.Array
+
+
+def move_and_slide(world: World, body, velocity, dt, *, skin: float = SKIN
+                   ) -> tuple[World, SlideInfo]:
+  """Moves one body as a kinematic character: Godot's `move_and_slide`, for boxes.
+
+  The body moves by `velocity * dt`, one axis at a time, x first, then y from where the
+  x move ended. Along each axis it stops flush at the first face in its way (its
+  position is then the obstacle's face plus its half-extent, exactly up to float
+  rounding: it never enters), and that velocity component becomes 0; the other axis
+  keeps its speed, so a body slides along floors and walls. An obstacle is every other
+  active, non-sensor body that collision layers admit with it, movable ones included,
+  that overlaps it along the other axis by more than `skin` (faces within `skin` of
+  each other, as a floor under a body sliding along a wall, are no obstacle: no ghost
+  collisions at seams) and lies ahead with a gap of at least `-skin` (a body it already
+  overlaps deeper does not block it: it may leave; nothing pushes it out either). A
+  one-way body blocks only a downward move whose bottom starts at or above its top, up
+  to the step's one-way margin (`geometry.ONE_WAY_MARGIN` of the summed half-heights),
+  and is then landed on flush; other moves pass it (from below, from the sides, and
+  after `drop_through`).
+
+  It pushes nothing: movable bodies are obstacles like walls (pushing is what `jc.step`
+  and its chains are for), and the body's mass and one-way flag are not read. It sets
+  the body's position and velocity in the world; a `jc.step` afterwards moves the body
+  again by that velocity (and, if it is movable, by gravity and contacts), so a
+  character that only `move_and_slide` moves should be stepped with its velocity set
+  to 0 (or not stepped: a level of static bodies needs no step). `on_floor` needs a
+  downward move: add gravity to the velocity every frame, as in Godot.
+
+  Args:
+    world: a single world.
+    body: the index of the body to move (an active body; traced values allowed).
+    velocity: `[2]` velocity to move with.
+    dt: the time step, `> 0`.
+    skin: contact tolerance (static; the step's `Config.skin` by default).
+
+  Returns:
+    `(world, info)`: the world with the body's `pos` and `vel` (the velocity with the
+    stopped components zeroed) updated, and a `SlideInfo`.
+
+  Raises:
+    ValueError: for a concrete body index that is out of range or inactive, a velocity
+      that is not `[2]` finite numbers, or a `dt` that is not finite and `> 0`.
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> INF = float("inf")  # A floor and a wall at x = 2; the player runs right and falls.
+    >>> w = jc.World.create([[0.0, -0.5], [2.5, 1.0], [0.0, 0.5]],
+    ...                     [[5.0, 0.5], [0.5, 1.0], [0.5, 0.5]], [INF, INF, 1.0])
+    >>> w, info = jc.move_and_slide(w, 2, [120.0, -30.0], 1 / 60)
+    >>> w.pos[2].tolist(), w.vel[2].tolist(), bool(info.on_floor), int(info.hit_x)
+    ([1.5, 0.5], [0.0, 0.0], True, 1)
+  """
+  _check_single(world, "move_and_slide")
+  i = _body_index("move_and_slide", world, body)
+  v = _vector("velocity", "move_and_slide", velocity, world.pos.dtype)
+  host = _concrete(dt)
+  if host is not None and (host.shape != () or not np.isfinite(host) or host <= 0):
+    raise ValueError(f"move_and_slide: dt must be a finite number > 0, got {dt!r}")
+  if not (isinstance(skin, (int, float, np.floating)) and np.isfinite(skin) and skin >= 0):
+    raise ValueError(f"move_and_slide: skin must be a finite number >= 0, got {skin!r}")
+  return _move_and_slide(world, i, v, jnp.asarray(dt, world.pos.dtype), float(skin))
+
+
+def _obstacles(world: World, i: jax.Array) -> jax.Array:
+  """`[n]` bool: the bodies that can stop body i (active, solid, admitted by layers)."""
+  n = world.num_bodies
+  zero = jnp.zeros((), jnp.uint32)
+  admitted = (((world.category[i] & world.mask) != zero)
+              & ((world.category & world.mask[i]) != zero))
+  return world.active & ~world.sensor & admitted & (jnp.arange(n) != i)
+
+
+def _sweep(world: World, obstacle: jax.Array, p: jax.Array, h: jax.Array, axis: int,
+           move: jax.Array, skin: float) -> tuple[jax.Array, jax.Array, jax.Array]:
+  """Moves the box (`p`, `h`) by `move` along `axis`: `(coordinate, hit, index)`."""
+  other = 1 - axis
+  d = world.pos - p[None]  # [n, 2]
+  reach = world.half + h[None]
+  side = reach[:, other] - jnp.abs(d[:, other])  # Overlap along the other axis.
+  gap = jnp.abs(d[:, axis]) - reach[:, axis]  # >= 0: apart along the axis.
+  ahead = jnp.where(move > 0, d[:, axis] > 0, d[:, axis] < 0)
+  solid = ~world.one_way & (gap >= -skin)
+  if axis == 1:  # A one-way body stops only a fall that starts above it (its margin).
+    margin = geometry.ONE_WAY_MARGIN * reach[:, 1]
+    solid = solid | (world.one_way & (move < 0) & (gap >= -margin))
+  else:
+    solid = solid & ~world.one_way
+  stop = obstacle & ahead & (side > skin) & solid & (move != 0)
+  clear = jnp.maximum(gap, 0.0)
+  stop = stop & (clear <= jnp.abs(move))
+  j = jnp.argmin(jnp.where(stop, clear, jnp.inf)).astype(jnp.int32)
+  hit = jnp.any(stop)
+  face = world.pos[j, axis] - jnp.sign(move) * reach[j, axis]
+  return jnp.where(hit, face, p[axis] + move), hit, jnp.where(hit, j, -1)
+
+
+@functools.partial(jax.jit, static_argnames="skin")
+def _move_and_slide(world: World, i: jax.Array, v: jax.Array, dt: jax.Array,
+                    skin: float) -> tuple[World, SlideInfo]:
+  obstacle = _obstacles(world, i)
+  p, h = world.pos[i], world.half[i]
+  move = jnp.where(world.active[i], v * dt, 0.0)
+  x, hit_x, j_x = _sweep(world, obstacle, p, h, 0, move[0], skin)
+  p = p.at[0].set(x)
+  y, hit_y, j_y = _sweep(world, obstacle, p, h, 1, move[1], skin)
+  p = p.at[1].set(y)
+  vel = jnp.where(jnp.stack([hit_x, hit_y]), 0.0, v)
+  vel = jnp.where(world.active[i], vel, world.vel[i])
+  info = SlideInfo(on_floor=hit_y & (move[1] < 0), on_wall=hit_x,
+                   on_ceiling=hit_y & (move[1] > 0), hit_x=j_x, hit_y=j_y)
+  world = dataclasses.replace(world, pos=world.pos.at[i].set(p), vel=world.vel.at[i].set(vel))
+  return world, info
+
+
+# --- drive_platforms ---------------------------------------------------------------------
+
+
+def drive_platforms(world: World, platforms, velocity, *, depth: int = 8,
+                    skin: float = SKIN) -> World:
+  """Sets the velocity of kinematic platforms and carries their riders by the change.
+
+  A kinematic platform is an immovable body (mass inf) that moves by its velocity in
+  `jc.step`. Left alone, the step carries what stands on it only by friction (a
+  frictionless box stays behind when the platform starts moving sideways). This sets
+  each platform's velocity to `velocity` and adds the platform's velocity *change* to
+  every body carried by it, so relative velocities are kept and the following steps
+  move riders with the platform, friction or not.
+
+  Carried: an active movable body whose support (what it stands on:
+  `touching_bodies`' `-y` row, the one-way rule included; of several, the one under
+  the widest part of its bottom face, ties to the lower index) is a driven platform,
+  or is itself carried, up to `depth` bodies high. Both velocity components change
+  (a platform that starts down takes its riders down with it). A body touching a
+  platform only from the side or from below is not carried.
+
+  This is external work, like the platform's own motion: momentum and energy are not
+  conserved by this call (the step's conservation statements, physics page, are about
+  the step and are untouched). Call it whenever you change a platform's velocity;
+  changing it with `world.replace` or through `jc.step`'s `accel` carries nothing.
+  O(n^2) (dense pairs).
+
+  Args:
+    world: a single world.
+    platforms: the bodies to drive: one index, or an `[n]` bool mask. Movable bodies
+      in it are ignored (a concrete one is an error).
+    velocity: `[2]` for all of them, or `[n, 2]` (row i for body i).
+    depth: how many bodies high a stack is carried (static).
+    skin: contact tolerance (static).
+
+  Returns:
+    The world with the platforms' and their riders' velocities updated.
+
+  Raises:
+    ValueError: for a concrete platform index out of range, a mask of the wrong shape,
+      a movable platform, or a velocity that is not finite `[2]` or `[n, 2]`.
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> INF = float("inf")  # A platform, a frictionless box on it, a box on that one.
+    >>> w = jc.World.create([[0.0, 0.0], [0.0, 1.0], [0.0, 2.0]],
+    ...                     [[2.0, 0.5], [0.5, 0.5], [0.5, 0.5]], [INF, 1.0, 1.0])
+    >>> jc.drive_platforms(w, 0, [2.0, 0.0]).vel[:, 0].tolist()
+    [2.0, 2.0, 2.0]
+  """
+  _check_single(world, "drive_platforms")
+  n = world.num_bodies
+  host = _concrete(platforms)
+  if host is not None:
+    if host.shape == () and host.dtype.kind in "iu":
+      if not 0 <= int(host) < n:
+        raise ValueError(f"drive_platforms: platform {int(host)} is not in [0, {n})")
+      host = np.arange(n) == int(host)
+    elif host.shape != (n,) or host.dtype != bool:
+      raise ValueError(f"drive_platforms: platforms must be a body index or a bool mask of shape "
+                       f"({n},), got {host.dtype} {host.shape}")
+    inv_mass = _concrete(world.inv_mass)
+    if inv_mass is not None and np.any(host & (inv_mass > 0)):
+      raise ValueError(f"drive_platforms: platforms must be immovable (mass inf); bodies "
+                       f"{np.flatnonzero(host & (inv_mass > 0)).tolist()} are movable")
+  platforms = jnp.asarray(platforms)
+  if platforms.ndim == 0:
+    platforms = jnp.arange(n) == platforms
+  vel = _concrete(velocity)
+  if vel is not None and (vel.shape not in ((2,), (n, 2)) or not np.all(np.isfinite(vel))):
+    raise ValueError(f"drive_platforms: velocity must be finite, of shape (2,) or ({n}, 2), got "
+                     f"{vel.shape}")
+  velocity = jnp.broadcast_to(jnp.asarray(velocity, world.vel.dtype), (n, 2))
+  if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or depth < 0:
+    raise ValueError(f"drive_platforms: depth must be an integer >= 0, got {depth!r}")
+  return _drive_platforms(world, platforms, velocity, int(depth), float(skin))
+
+
+def _supports(world: World, skin: float) -> tuple[jax.Array, jax.Array, jax.Array]:
+  """Per body: whether it stands on something, the support under the widest part of
+  its bottom face (ties: lower index), and whether every support is one-way; also the
+  `[n, n]` support matrix. (`touching_bodies`' `-y` rows, uncompacted.)"""
+  c = _pair_contacts(world, skin)
+  below = geometry.by_direction(c)[3]  # [n, n]: j touches i from below.
+  d = world.pos[None, :, 0] - world.pos[:, None, 0]
+  width = world.half[:, None, 0] + world.half[None, :, 0] - jnp.abs(d)
+  best = jnp.argmax(jnp.where(below, width, -jnp.inf), axis=-1).astype(jnp.int32)
+  return jnp.any(below, axis=-1), best, below
+
+
+@functools.partial(jax.jit, static_argnames=("depth", "skin"))
+def _drive_platforms(world: World, platforms: jax.Array, velocity: jax.Array, depth: int,
+                     skin: float) -> World:
+  driven = platforms & world.active & (world.inv_mass == 0)
+  change = jnp.where(driven[:, None], velocity - world.vel, 0.0)
+  stands, best, _ = _supports(world, skin)
+  carried = stands & world.movable
+
+  def hop(_, dv):
+    return jnp.where(carried[:, None], dv[best], change)
+
+  dv = jax.lax.fori_loop(0, depth, hop, change)
+  return dataclasses.replace(world, vel=world.vel + dv)
+
+
+# --- drop_through ------------------------------------------------------------------------
+
+
+def drop_through(world: World, body, *, skin: float = SKIN) -> tuple[World, jax.Array]:
+  """Lets a body standing only on one-way platforms fall through them.
+
+  When body i stands on something (`touching_bodies`' `-y` row: the one-way rule of the
+  step, at the current positions and velocities) and everything it stands on is
+  one-way, it moves down until its bottom is below each support's top by the one-way
+  margin plus a little: `top_j - (ONE_WAY_MARGIN + DROP_EXTRA) * (h_i + h_j)` along y
+  (half-heights; `DROP_EXTRA = 0.01`). From there the one-way rule no longer holds it
+  (its bottom is below the margin; only a crush would), so the next `jc.step` lets it
+  fall, and `move_and_slide` passes the platforms too. Its velocity is unchanged. A body
+  on solid ground (any support that is not one-way), or standing on nothing, is left
+  as it is. O(n^2) (dense pairs).
+
+  Args:
+    world: a single world.
+    body: the index of the body (an active body; traced values allowed).
+    skin: contact tolerance (static).
+
+  Returns:
+    `(world, dropped)`: the world, and a bool scalar saying whether the body moved.
+
+  Examples:
+    >>> import jaxchain as jc
+    >>> w = jc.World.create([[0.0, 0.0], [0.0, 0.6]], [[2.0, 0.1], [0.5, 0.5]],
+    ...                     [float("inf"), 1.0], one_way=[True, False])
+    >>> w, dropped = jc.drop_through(w, 1)
+    >>> bool(dropped), round(float(w.pos[1, 1]), 4)  # 0.6 - 0.06 * (0.5 + 0.1)
+    (True, 0.564)
+  """
+  _check_single(world, "drop_through")
+  i = _body_index("drop_through", world, body)
+  return _drop_through(world, i, float(skin))
+
+
+@functools.partial(jax.jit, static_argnames="skin")
+def _drop_through(world: World, i: jax.Array, skin: float) -> tuple[World, jax.Array]:
+  _, _, below = _supports(world, skin)
+  row = below[i]  # [n]
+  dropped = jnp.any(row) & ~jnp.any(row & ~world.one_way) & world.active[i]
+  h = world.half[i, 1]
+  top = world.pos[:, 1] + world.half[:, 1]
+  bottom = top - (geometry.ONE_WAY_MARGIN + DROP_EXTRA) * (world.half[:, 1] + h)
+  y = jnp.min(jnp.where(row, bottom + h, jnp.inf))
+  y = jnp.minimum(y, world.pos[i, 1])  # Only ever down.
+  new = jnp.where(dropped, y, world.pos[i, 1])
+  return dataclasses.replace(world, pos=world.pos.at[i, 1].set(new)), dropped
