@@ -71,8 +71,9 @@ class PPOConfig:
     gamma: discount.
     gae_lambda: GAE's lambda.
     clip_eps: the ratio clip of the policy loss (and of the value loss).
-    ent_coef: weight of the entropy bonus (None: 0.01 for a categorical head, 0 for
-      a Gaussian one, whose spread the learned log-std already keeps).
+    ent_coef: weight of the entropy bonus (None: 0.01 for a categorical head, 0.005
+      for a Gaussian one, which keeps its spread long enough to find every room of
+      push_box_easy).
     vf_coef: weight of the value loss.
     max_grad_norm: global gradient-norm clip.
     lr: Adam's learning rate (annealed linearly to 0 when `anneal_lr`).
@@ -88,14 +89,21 @@ class PPOConfig:
       (flattened) observation (None: all). With the vector observation, 9 + 8 * k
       keeps the player and the first k slots: `--obs-features 73` on push_box_easy
       keeps the player, box and goal features and leaves out the wall slots (as
-      `examples/es_push_box.py` does).
+      `examples/es_push_box.py` does). "auto" (the default): that cut for an env with
+      the vector observation whose wall slots come last (every shipped task: the
+      walls of a level do not move, and their inputs slowed learning on
+      push_box_easy, `benchmarks/results/ppo.md`), else all (`auto_features`).
   """
 
-  num_envs: int = 128
-  num_steps: int = 64
+  # The defaults learn push_box_easy (the CLI's default env) within 100k env steps
+  # (benchmarks/results/ppo.md); the earlier ones (128 envs x 64 steps, 4 epochs, 8
+  # minibatches, standardised inputs, all 105 of them) stayed at 0% there. Small
+  # batches make many updates out of few steps.
+  num_envs: int = 16
+  num_steps: int = 128
   total_timesteps: int = 1_000_000
-  update_epochs: int = 4
-  num_minibatches: int = 8
+  update_epochs: int = 8
+  num_minibatches: int = 4
   gamma: float = 0.99
   gae_lambda: float = 0.95
   clip_eps: float = 0.2
@@ -106,9 +114,9 @@ class PPOConfig:
   anneal_lr: bool = True
   hidden: int = 64
   init_log_std: float = 0.0
-  normalize_obs: bool = True
+  normalize_obs: bool = False
   squash: bool = False
-  obs_features: int | None = None
+  obs_features: int | str | None = "auto"
 
   @property
   def batch_size(self) -> int:
@@ -240,9 +248,31 @@ def to_env(head: Head, raw: jax.Array) -> jax.Array:
 # Observations.
 
 
+def auto_features(env) -> int | None:
+  """`obs_features="auto"` for `env`: the player's and every non-wall slot's features
+  of the vector observation (`PLAYER_FEATURES + len(SLOT_FIELDS) * slots`) when the
+  wall slots come last; None (all) otherwise (other observations, other envs)."""
+  slots = getattr(env, "slots", None)
+  if getattr(env, "obs_mode", None) != "vector" or not slots or slots[-1][0] != "wall":
+    return None
+  if any(kind == "wall" for kind, _ in slots[:-1]):
+    return None
+  kept = sum(count for kind, count in slots[:-1])
+  return jc.env.PLAYER_FEATURES + len(jc.env.SLOT_FIELDS) * kept
+
+
+def resolve_features(config: PPOConfig, env) -> PPOConfig:
+  """`config` with `obs_features="auto"` replaced by `auto_features(env)`."""
+  if config.obs_features == "auto":
+    return dataclasses.replace(config, obs_features=auto_features(env))
+  if isinstance(config.obs_features, str):
+    raise ValueError(f"obs_features: an int, None or 'auto', got {config.obs_features!r}")
+  return config
+
+
 def features(config: PPOConfig | None, obs: jax.Array) -> jax.Array:
   """A batch of observations `[B, ...]` as the networks' input `[B, k]`: flattened, and
-  cut to the first `config.obs_features` entries if that is set."""
+  cut to the first `config.obs_features` entries if that is set (resolved: no "auto")."""
   flat = obs.reshape(obs.shape[0], -1)
   if config is not None and config.obs_features is not None:
     flat = flat[:, :config.obs_features]
@@ -338,6 +368,7 @@ def make_train(env, env_params, config: PPOConfig, *, verbose: bool = False, log
     observation statistics or None}` (what `act` and `make_evaluate` take) and
     `curve` a dict of `[num_updates]` arrays keyed by `CURVE_FIELDS`.
   """
+  config = resolve_features(config, env)
   head = head_of(env.action_space(env_params), config.squash)
   obs_size = int(np.prod(env.observation_space(env_params).shape))
   if config.obs_features is not None:
@@ -355,7 +386,7 @@ def make_train(env, env_params, config: PPOConfig, *, verbose: bool = False, log
   v_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
   gamma = config.gamma
 
-  ent_coef = config.ent_coef if config.ent_coef is not None else (0.01 if head.discrete else 0.0)
+  ent_coef = config.ent_coef if config.ent_coef is not None else (0.01 if head.discrete else 0.005)
 
   def loss_fn(theta, batch: Transition, adv, target):
     out = mlp(theta["actor"], batch.obs)
@@ -478,6 +509,8 @@ def make_evaluate(env, env_params, head: Head, max_steps: int, episodes: int = 2
   `max_steps` steps (the policy reads `features(config, obs)`, as in training); only
   the first episode of each env counts. `level` is the
   episode's level index (`state.level`; -1 for an env whose state has none)."""
+  if config is not None:
+    config = resolve_features(config, env)
   v_reset = jax.vmap(env.reset, in_axes=(0, None))
   v_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
 
@@ -615,6 +648,15 @@ def _parse_param(text: str):
       raise argparse.ArgumentTypeError(f"--param {key}: not a number: {value!r}") from None
 
 
+def _parse_features(text: str):
+  if text in ("all", "auto"):
+    return None if text == "all" else "auto"
+  try:
+    return int(text)
+  except ValueError:
+    raise argparse.ArgumentTypeError(f"--obs-features: an int, all or auto, got {text!r}") from None
+
+
 def main(argv=None) -> int:
   defaults = PPOConfig()
   parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -634,10 +676,14 @@ def main(argv=None) -> int:
   parser.add_argument("--hidden", type=int, default=defaults.hidden)
   parser.add_argument("--init-log-std", type=float, default=defaults.init_log_std)
   parser.add_argument("--squash", action="store_true", help="tanh-squash Gaussian samples")
-  parser.add_argument("--obs-features", type=int, default=None, metavar="K",
-                      help="the policy reads only the first K observation entries")
-  parser.add_argument("--no-normalize-obs", action="store_true",
-                      help="feed raw observations (default: running standardisation)")
+  parser.add_argument("--obs-features", type=_parse_features, default=defaults.obs_features,
+                      metavar="K|all|auto",
+                      help="the policy reads only the first K observation entries; all; or "
+                           "auto (default: all but the wall slots of the vector observation)")
+  parser.add_argument("--normalize-obs", action=argparse.BooleanOptionalAction,
+                      default=defaults.normalize_obs,
+                      help="standardise observations by running statistics (default: "
+                           f"{'on' if defaults.normalize_obs else 'off'})")
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--eval-episodes", type=int, default=256)
   parser.add_argument("--eval-steps", type=int, default=None,
@@ -666,7 +712,7 @@ def main(argv=None) -> int:
                      ent_coef=args.ent_coef, hidden=args.hidden,
                      init_log_std=args.init_log_std, squash=args.squash,
                      obs_features=args.obs_features,
-                     normalize_obs=not args.no_normalize_obs)
+                     normalize_obs=args.normalize_obs)
   head = head_of(env.action_space(env_params), config.squash)
   label = args.env + (f" ({args.level})" if args.level else "")
   print(f"PPO on {label}: {env!r}; {'categorical' if head.discrete else 'Gaussian'} head over "

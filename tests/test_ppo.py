@@ -39,7 +39,8 @@ def test_tiny_run_return_rises(tmp_path):
   the curve files are written."""
   env, params = jc.env.make("reach_flag", levels=["platformer1"], max_steps=64, shaping=0.1)
   config = ppo.PPOConfig(num_envs=8, num_steps=64, total_timesteps=8 * 64 * 24, update_epochs=4,
-                         num_minibatches=4, lr=3e-3, hidden=32, gamma=0.9)
+                         num_minibatches=4, lr=3e-3, hidden=32, gamma=0.9, normalize_obs=True,
+                         obs_features=None)
   policy, curve = jax.jit(ppo.make_train(env, params, config))(jax.random.key(0))
   ret = np.asarray(curve["return"])
   assert ret.shape == (config.num_updates,) == (24,)
@@ -125,3 +126,20 @@ def test_load_env():
     ppo.load_env("no_such_task")
   with pytest.raises(SystemExit, match="--level"):
     ppo.load_env(str(ROOT / "examples" / "ppo.py"), "platformer1")
+
+
+def test_auto_features_leave_out_the_wall_slots():
+  """The default `obs_features="auto"`: the player and the non-wall slots of the vector
+  observation (push_box_easy: player + 4 box + 4 goal slots = 73 of 105), all of any
+  other observation."""
+  easy, _ = jc.env.make("push_box_easy")
+  assert ppo.auto_features(easy) == 9 + 8 * 8 == 73 < easy.obs_size
+  flag, _ = jc.env.make("reach_flag")
+  assert ppo.auto_features(flag) == 9 + 8 * (1 + 4 + 4 + 6) == flag.obs_size - 8 * 4
+  grid, _ = jc.env.make("push_box_easy", obs="grid")
+  assert ppo.auto_features(grid) is None
+  config = ppo.resolve_features(ppo.PPOConfig(), easy)
+  assert config.obs_features == 73
+  assert ppo.resolve_features(ppo.PPOConfig(obs_features=None), easy).obs_features is None
+  with pytest.raises(ValueError, match="obs_features"):
+    ppo.resolve_features(ppo.PPOConfig(obs_features="walls"), easy)
