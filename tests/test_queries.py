@@ -5,6 +5,8 @@ Every world here is padded to `CAP` bodies, so each query compiles once for the 
 """
 
 import doctest
+import importlib.util
+import pathlib
 
 import chex
 import jax
@@ -283,6 +285,10 @@ def test_move_and_slide_lands_and_bumps_the_ceiling():
   w, info = _slide(_level(), [0.0, 1.0], [0.0, -60.0])  # Falls 1 unit, the gap is 0.5.
   assert w.pos[PLAYER].tolist() == [0.0, 0.5] and bool(info.on_floor)
   assert int(info.hit_y) in (0, 1) and w.vel[PLAYER].tolist() == [0.0, 0.0]
+  assert info.floor_velocity.tolist() == [0.0, 0.0]
+  moving = _level().replace(vel=_level().vel.at[0].set(jnp.array([2.0, 0.0])))  # Tile 0 moves.
+  w, info = _slide(moving, [-0.5, 1.0], [0.0, -60.0])
+  assert int(info.hit_y) == 0 and info.floor_velocity.tolist() == [2.0, 0.0]
   w, info = _slide(_level(), [1.0, 2.0], [3.0, 60.0])  # Up 1 unit, the ceiling is 0.5 away.
   np.testing.assert_allclose(w.pos[PLAYER], [1.05, 2.5], **EXACT)
   assert w.pos[PLAYER, 1] == 2.5 and w.vel[PLAYER].tolist() == [3.0, 0.0]
@@ -416,3 +422,31 @@ def test_drop_through_keeps_a_body_on_solid_ground():
   # The player then passes the ledge with move_and_slide too.
   w, info = jc.move_and_slide(jc.drop_through(_ledge_scene(), 2)[0], 2, [0.0, -60.0], DT)
   assert not info.on_floor and float(w.pos[2, 1]) < 2.0
+
+
+# --- examples/controller.py ----------------------------------------------------------------
+
+def test_controller_example():
+  spec = importlib.util.spec_from_file_location(
+      "controller_example", pathlib.Path(__file__).resolve().parents[1] / "examples" / "controller.py")
+  ex = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(ex)
+  runs = np.array([2.0, 4.0])
+  final, trace = ex.run_worlds(runs, 360)
+  pos, on_floor, jumps, floor = (np.asarray(x) for x in trace)
+  player = pos[:, :, ex.PLAYER]
+  # Dropped through the ledge (top y = 2.5) and reached the floor within a second.
+  assert (np.abs(player[:, :60, 1] - 0.5) < 1e-4).any(axis=1).all()
+  assert (player[:, 0, 1] < 3.0).all()
+  # Never inside the floor, the walls or the box (a kinematic helper never enters).
+  for j in (ex.FLOOR, ex.LEFT, ex.RIGHT, ex.BOX):
+    over = (np.asarray(final.half[:, j])[:, None] + np.asarray(final.half[:, ex.PLAYER])[:, None]
+            - np.abs(pos[:, :, j] - player))
+    assert np.min(over, axis=-1).max() < 1e-4, j
+  # The frictionless crate rides the patrolling platform, reversals included.
+  rel = pos[:, :, ex.CRATE] - pos[:, :, ex.PLATFORM]
+  np.testing.assert_allclose(rel, np.broadcast_to([0.0, 0.75], rel.shape), atol=1e-4)
+  assert np.ptp(pos[:, :, ex.PLATFORM, 0], axis=1).min() > 1.5  # It did patrol.
+  assert jumps.sum(axis=1).min() >= 1 and bool(np.any(floor[1] == ex.PLATFORM))
+  lines = ex.report(runs, final, trace)
+  assert lines[-1] == "status: ok" and "rode the platform: True" in lines[1]

@@ -375,6 +375,9 @@ class SlideInfo:
     on_ceiling: `[]` bool, the move along y went up and was stopped by a ceiling.
     hit_x: `[]` int32, the body that stopped the move along x, or -1.
     hit_y: `[]` int32, the body that stopped the move along y, or -1.
+    floor_velocity: `[2]` float, the velocity of the floor it landed on (a moving
+      platform's, say: add it to the next move to ride along, Godot's
+      `get_platform_velocity`); zero when not `on_floor`.
   """
 
   on_floor: jax.Array
@@ -382,6 +385,7 @@ class SlideInfo:
   on_ceiling: jax.Array
   hit_x: jax.Array
   hit_y: jax.Array
+  floor_velocity: jax.Array
 
 
 def move_and_slide(world: World, body, velocity, dt, *, skin: float = SKIN
@@ -409,7 +413,8 @@ def move_and_slide(world: World, body, velocity, dt, *, skin: float = SKIN
   again by that velocity (and, if it is movable, by gravity and contacts), so a
   character that only `move_and_slide` moves should be stepped with its velocity set
   to 0 (or not stepped: a level of static bodies needs no step). `on_floor` needs a
-  downward move: add gravity to the velocity every frame, as in Godot.
+  downward move: add gravity to the velocity every frame, as in Godot. To ride a moving
+  platform, add `info.floor_velocity` to the next frame's move.
 
   Args:
     world: a single world.
@@ -491,8 +496,10 @@ def _move_and_slide(world: World, i: jax.Array, v: jax.Array, dt: jax.Array,
   p = p.at[1].set(y)
   vel = jnp.where(jnp.stack([hit_x, hit_y]), 0.0, v)
   vel = jnp.where(world.active[i], vel, world.vel[i])
-  info = SlideInfo(on_floor=hit_y & (move[1] < 0), on_wall=hit_x,
-                   on_ceiling=hit_y & (move[1] > 0), hit_x=j_x, hit_y=j_y)
+  on_floor = hit_y & (move[1] < 0)
+  info = SlideInfo(on_floor=on_floor, on_wall=hit_x, on_ceiling=hit_y & (move[1] > 0),
+                   hit_x=j_x, hit_y=j_y,
+                   floor_velocity=jnp.where(on_floor, world.vel[jnp.maximum(j_y, 0)], 0.0))
   world = dataclasses.replace(world, pos=world.pos.at[i].set(p), vel=world.vel.at[i].set(vel))
   return world, info
 
