@@ -327,6 +327,28 @@ def test_move_and_slide_vmap_and_no_recompile():
   assert w.pos[:, PLAYER, 0].tolist() == [3.5, 1.5]
 
 
+def test_move_and_slide_gradients():
+  base = _level()
+
+  def x_after(v, wall_x):  # Where the player ends along x.
+    w = base.replace(pos=base.pos.at[2, 0].set(wall_x))
+    return jc.move_and_slide(w, PLAYER, v, DT)[0].pos[PLAYER, 0]
+
+  grad = jax.jit(jax.grad(x_after, argnums=(0, 1)))
+  g_v, g_wall = grad(jnp.array([6.0, -1.0]), 4.5)  # Free: moves by v dt.
+  np.testing.assert_allclose(g_v, [DT, 0.0], **EXACT)
+  assert g_wall == 0.0
+  g_v, g_wall = grad(jnp.array([600.0, -1.0]), 4.5)  # Stopped flush: follows the wall.
+  assert g_v.tolist() == [0.0, 0.0] and g_wall == 1.0
+
+
+def test_empty_world():
+  e = jc.World.create(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
+  assert jc.touching_bodies(e)[0].shape == (0, 4, 4) and jc.query_point(e, [0.0, 0.0]).shape == (0,)
+  assert not jc.raycast(e, [0.0, 0.0], [1.0, 0.0]).hit
+  assert jc.drive_platforms(e, np.zeros(0, bool), [1.0, 0.0]).vel.shape == (0, 2)
+
+
 def test_move_and_slide_rejects_bad_host_input():
   w = _level()
   with pytest.raises(ValueError, match="body 10 is not in"):

@@ -300,9 +300,9 @@ def raycast(world: World, origin, direction, max_distance=float("inf"), *, mask=
   Examples:
     >>> import jaxchain as jc
     >>> w = jc.World.create([[0.0, 0.0], [3.0, 0.0], [5.0, 0.0]], [0.5, 0.5], 1.0)
-    >>> r = jc.raycast(w, [0.0, 0.2], [2.0, 0.0])  # from inside body 0: it is ignored
+    >>> r = jc.raycast(w, [0.0, 0.25], [2.0, 0.0])  # from inside body 0: it is ignored
     >>> bool(r.hit), int(r.body), float(r.distance), r.point.tolist(), r.normal.tolist()
-    (True, 1, 2.5, [2.5, 0.20000000298023224], [-1.0, 0.0])
+    (True, 1, 2.5, [2.5, 0.25], [-1.0, 0.0])
   """
   _check_single(world, "raycast")
   dtype = world.pos.dtype
@@ -334,6 +334,10 @@ def raycast(world: World, origin, direction, max_distance=float("inf"), *, mask=
 @jax.jit
 def _raycast(world: World, origin: jax.Array, direction: jax.Array, max_distance: jax.Array,
              admitted: jax.Array) -> RayHit:
+  if world.num_bodies == 0:  # Nothing to hit.
+    zero = jnp.zeros(2, origin.dtype)
+    return RayHit(hit=jnp.zeros((), bool), body=jnp.full((), -1, jnp.int32),
+                  distance=max_distance, point=origin, normal=zero)
   sq = jnp.sum(direction * direction)
   ok = sq > 0
   norm = jnp.sqrt(jnp.where(ok, sq, 1.0))  # Guarded: no NaN gradient at a zero direction.
@@ -597,6 +601,8 @@ def _supports(world: World, skin: float) -> tuple[jax.Array, jax.Array, jax.Arra
 @functools.partial(jax.jit, static_argnames=("depth", "skin"))
 def _drive_platforms(world: World, platforms: jax.Array, velocity: jax.Array, depth: int,
                      skin: float) -> World:
+  if world.num_bodies == 0:
+    return world
   driven = platforms & world.active & (world.inv_mass == 0)
   change = jnp.where(driven[:, None], velocity - world.vel, 0.0)
   stands, best, _ = _supports(world, skin)
