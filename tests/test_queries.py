@@ -78,6 +78,16 @@ def test_touching_bodies_agree_with_the_step_flags():
   assert np.asarray(stepped.touching)[[2, 3, 5]].any(-1).all()  # The scene is not trivial.
 
 
+def test_touching_bodies_no_side_contact_at_a_seam():
+  # A box whose edge is on the seam between two floor tiles, a rounding error inside
+  # both: it stands on the tiles and touches no tile's side (the step's seam rule).
+  for eps in (0.0, 1e-7, 1e-6, -1e-6):
+    w = make([[-0.5, -0.5], [0.5, -0.5], [-0.5 + eps, 0.5 - abs(eps)]], [0.5, 0.5],
+             [INF, INF, 1.0])
+    index = np.asarray(jc.touching_bodies(w)[0][2])
+    assert (index[:3] == -1).all() and index[3, 0] == 0, (eps, index)
+
+
 def test_touching_bodies_overflow_lists_the_first_k():
   # A wide box on three small ones: with k = 2 its -y row is full and overflows.
   w = make([[0.0, 1.5], [-1.0, 0.5], [0.0, 0.5], [1.0, 0.5]], [[1.5, 0.5], [0.4, 0.5],

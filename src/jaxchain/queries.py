@@ -101,13 +101,17 @@ def _category_filter(fn: str, world: World, mask) -> jax.Array:
 
 def _pair_contacts(world: World, skin: float) -> geometry.Contacts:
   """The step's contacts of every pair of active, solid, layer-admitted bodies, at the
-  current positions and velocities (dense pairs, `[n, n]`; the one-way rule as in a pass,
-  reading `world.vel`)."""
+  current positions and velocities (dense pairs, `[n, n]`), as a pass that starts and
+  ends here sees them: the one-way rule reads `world.vel`, and corner contacts at the
+  seams of immovable surfaces take the surface's axis (`geometry.seam_axis`), so a body
+  whose edge is on the seam between two floor tiles touches no tile's side, whatever
+  the rounding."""
   cand = flags.admit(broadphase.dense(world.active), world, layers=True, sensors=True)
   fixed = world.active & (world.inv_mass == 0)
   ow = geometry.OneWay(one_way=world.active & world.one_way, solid=fixed & ~world.one_way,
                        vel=world.vel)
-  return geometry.contacts(world.pos, world.half, cand, skin, one_way=ow)
+  return geometry.contacts(world.pos, world.half, cand, skin, start=world.pos, one_way=ow,
+                           surface=fixed & ~world.one_way)
 
 
 # --- touching_bodies --------------------------------------------------------------------
@@ -130,8 +134,11 @@ def touching_bodies(world: World, *, k: int = 4, skin: float = SKIN
 
   So `touching_bodies(world)[0][:, 3, 0]` answers "what am I standing on". Unlike
   `World.touching` (written by a step, movable bodies only), every body has rows,
-  immovable ones included (a platform's `+y` row lists its riders). The contact axes of
-  a step also read the motion of the step (time of impact, seams); at rest the two agree.
+  immovable ones included (a platform's `+y` row lists its riders). Corner contacts at
+  the seams of immovable surfaces take the surface's axis as in the step
+  (`geometry.seam_axis`): a box whose edge is on the seam between two floor tiles stands
+  on them and touches no tile's side, whatever the rounding. A step's contact axes also
+  read the step's motion (time of impact); here there is none, so at rest the two agree.
 
   O(n^2): dense pairs, compacted with `geometry.first_set`.
 
