@@ -7,8 +7,8 @@ A kinematic platform patrols above the floor carrying a frictionless crate
 (`jc.drive_platforms` reverses it and carries the crate by the change); the player rides
 it when it lands on it (`SlideInfo.floor_velocity`). Everything but the player is moved
 by `jc.step`, with the player's velocity set to 0 for the step, so the step does not move
-it twice: to the boxes it is a wall. One frame is one jitted function; `jax.vmap` runs
-worlds with different run speeds at once.
+it twice: to the boxes it is a wall. The frames run in one jitted `lax.scan`, and
+`jax.vmap` runs worlds with different run speeds at once.
 
     python examples/controller.py [--worlds 4] [--frames 360]
 
@@ -104,9 +104,10 @@ def report(runs: np.ndarray, final: jc.World, trace) -> list[str]:
     y = pos[b, :, PLAYER, 1]
     landed = int(np.argmax(on_floor[b] & (np.abs(y - 0.5) < 1e-4)))
     crate_on = abs(float(final.pos[b, CRATE, 1] - final.pos[b, PLATFORM, 1]) - 0.75) < 1e-3
+    rode = bool(np.any(floor[b] == PLATFORM))
     lines.append(f"world {b} (run {runs[b]:.2f} u/s): dropped through the ledge to the floor at "
                  f"frame {landed}, {int(np.sum(jumps[b]))} jumps, highest y after that "
-                 f"{y[landed:].max():.2f}, rode the platform: {bool(np.any(floor[b] == PLATFORM))}, "
+                 f"{y[landed:].max():.2f}, rode the platform: {rode}, "
                  f"crate still on the platform: {crate_on}")
   problems = jc.check(final)
   lines.append("status: " + ("ok" if not problems else "; ".join(problems)))

@@ -203,7 +203,8 @@ def test_raycast_rules_inside_graze_reach_mask_ignore():
   assert _hit(jc.raycast(w, [3.0, 1.0], [1.0, 0.0]))[:3] == (True, 1, 0.0)
   assert not jc.raycast(w, [3.0, 1.0], [-1.0, 0.0]).hit
   # max_distance: not reached, and reached exactly.
-  assert _hit(jc.raycast(w, [0.0, 1.0], [1.0, 0.0], 2.5)) == (False, -1, 2.5, [0.0, 1.0], [0.0, 0.0])
+  short = jc.raycast(w, [0.0, 1.0], [1.0, 0.0], 2.5)
+  assert _hit(short) == (False, -1, 2.5, [0.0, 1.0], [0.0, 0.0])
   assert jc.raycast(w, [0.0, 1.0], [1.0, 0.0], 3.0).body == 1
   # Layers and ignore skip the box; the sensor is never hit.
   assert jc.raycast(w, [0.0, 0.5], [1.0, 0.0], mask=1).body == 1
@@ -459,8 +460,8 @@ def test_drop_through_keeps_a_body_on_solid_ground():
 # --- examples/controller.py ----------------------------------------------------------------
 
 def test_controller_example():
-  spec = importlib.util.spec_from_file_location(
-      "controller_example", pathlib.Path(__file__).resolve().parents[1] / "examples" / "controller.py")
+  path = pathlib.Path(__file__).resolve().parents[1] / "examples" / "controller.py"
+  spec = importlib.util.spec_from_file_location("controller_example", path)
   ex = importlib.util.module_from_spec(spec)
   spec.loader.exec_module(ex)
   runs = np.array([2.0, 4.0])
