@@ -414,6 +414,16 @@ def test_drive_platforms_depth_mask_and_vmap():
     jc.drive_platforms(w, 0, [1.0, 0.0, 0.0])
 
 
+def test_one_way_platform_side_and_below_touch_nothing_and_ride_nothing():
+  # A one-way platform (0), a box at its right side (1), one just under it (2), one on it (3).
+  w = make([[0.0, 0.0], [1.5, 0.0], [0.0, -0.6], [0.0, 0.6]], [[1.0, 0.1]] + [[0.5, 0.5]] * 3,
+           [INF, 1.0, 1.0, 1.0], one_way=[True, False, False, False], gravity=(0.0, 0.0))
+  index, _ = jc.touching_bodies(w)
+  assert index[:4, :, 0].tolist() == [[-1, -1, 3, -1], [-1] * 4, [-1] * 4, [-1, -1, -1, 0]]
+  driven = jc.drive_platforms(w, 0, [2.0, 0.0])
+  assert driven.vel[:4].tolist() == [[2.0, 0.0], [0.0, 0.0], [0.0, 0.0], [2.0, 0.0]]
+
+
 # --- drop_through --------------------------------------------------------------------------
 
 def _ledge_scene(one_way=True):
