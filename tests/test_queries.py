@@ -147,6 +147,9 @@ def test_queries_vmap_over_points_and_worlds():
   batch = jc.stack([w, w.replace(pos=w.pos + jnp.array([[1.0, 0.0]]))])
   hits = jax.vmap(lambda v: jc.query_aabb(v, jnp.array([0.0, 0.0]), jnp.array([0.1, 0.1])))(batch)
   assert np.flatnonzero(hits[0]).tolist() == [0] and np.flatnonzero(hits[1]).tolist() == []
+  # An inverted box under jit finds nothing (even inside a body that spans it).
+  inverted = jax.jit(jc.query_aabb)(w, jnp.array([0.2, 0.0]), jnp.array([-0.2, 0.1]))
+  assert not inverted.any()
 
 
 def test_queries_reject_bad_host_input():

@@ -223,7 +223,7 @@ def query_aabb(world: World, lo, hi, *, mask=None) -> jax.Array:
 def _query_aabb(world: World, lo: jax.Array, hi: jax.Array, admitted: jax.Array) -> jax.Array:
   low, high = world.pos - world.half, world.pos + world.half
   inside = jnp.all((low <= hi[None]) & (lo[None] <= high), axis=-1)
-  return world.active & admitted & inside
+  return world.active & admitted & inside & jnp.all(lo <= hi)
 
 
 def query_point(world: World, point, *, mask=None) -> jax.Array:
