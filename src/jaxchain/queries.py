@@ -534,7 +534,8 @@ def drive_platforms(world: World, platforms, velocity, *, depth: int = 8,
   the widest part of its bottom face, ties to the lower index) is a driven platform,
   or is itself carried, up to `depth` bodies high. Both velocity components change
   (a platform that starts down takes its riders down with it). A body touching a
-  platform only from the side or from below is not carried.
+  platform only from the side or from below is not carried, nor is an immovable one (a
+  character moved by `move_and_slide` rides with `SlideInfo.floor_velocity`).
 
   This is external work, like the platform's own motion: momentum and energy are not
   conserved by this call (the step's conservation statements, physics page, are about
