@@ -34,7 +34,8 @@ DISCRETE = "push_box_discrete" if "push_box_discrete" in jc.env.TASKS else "reac
 
 def test_import_jaxchain_needs_neither_package():
   code = ("import sys, jaxchain, jaxchain.bridges, jaxchain.env; "
-          "print(sorted(m for m in ('gymnax', 'gymnasium', 'flax', 'optax') if m in sys.modules))")
+          "print(sorted(m for m in ('gymnax', 'gymnasium', 'flax', 'optax', 'stable_baselines3', "
+          "'torch') if m in sys.modules))")
   out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
   assert out.stdout.strip() == "[]"
 
