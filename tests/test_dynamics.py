@@ -53,6 +53,10 @@ def energy_tolerance(world):
 
 step_free = jax.jit(lambda w: jc.step(w, FREE))
 step_room = jax.jit(lambda w: jc.step(w, ROOM))
+# Jitted once for the energy fuzz's per-step check: eager it dispatches ~30 ops per call
+# (about 5 ms; 1500 calls per run of the two room tests). Elementwise ops and a max: the
+# same bits as eager.
+max_penetration = jax.jit(jc.metrics.max_penetration)
 
 
 # --- 1. Momentum ----------------------------------------------------------------------
@@ -179,7 +183,7 @@ def assert_no_energy_gain_from_resting_starts(world, steps, step_fn=step_room):
   checked = 0
   for _ in range(steps):
     nxt = step_fn(w)
-    if float(jc.metrics.max_penetration(w)) <= 1e-5:  # The claim is for non-overlapping starts.
+    if float(max_penetration(w)) <= 1e-5:  # The claim is for non-overlapping starts.
       gain = energy(nxt) - energy(w)
       assert gain <= energy_tolerance(w), (gain, energy_tolerance(w))
       checked += 1
