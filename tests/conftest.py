@@ -65,15 +65,11 @@ def pytest_cmdline_main(config):
 # The modules that take longest (summed test durations, 2026-12-02), longest first. loadfile hands
 # whole modules to the workers in collection order, so starting the long ones first
 # leaves no worker alone with one at the end. Only the order changes; a module not
-# listed keeps its place after these. Placed 2026-12-03 by CPU seconds of the module
-# alone (`pytest -n 0`): sb3 45, queries 36, ppo 28, sokoban 25, extras 19 (after
-# gradients 54, bridges 75, env 64, stability ~75; friction_links 22). test_work_meter
-# (6 s) and test_tiled_maps (3 s) are short: unlisted, among the short tail.
+# listed keeps its place after these.
 HEAVY_FIRST = ("test_dynamics.py", "test_benchmarks.py", "test_stepping.py", "test_cli.py",
                "test_readme.py", "test_flags.py", "test_broadphase.py", "test_sharding.py",
                "test_gradients.py", "test_bridges.py", "test_env.py", "test_stability.py",
-               "test_sb3.py", "test_queries.py", "test_ppo.py", "test_sokoban.py",
-               "test_friction_links.py", "test_extras.py")
+               "test_friction_links.py")
 
 
 def pytest_collection_modifyitems(config, items):
