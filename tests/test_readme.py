@@ -163,6 +163,18 @@ def test_readme_two_box_task_is_the_rl_page_s():
   assert len(task(ROOT / "README.md")) == 1
 
 
+@pytest.mark.parametrize("page", ["README.md", "docs/index.md", "docs/toolkit.md"])
+def test_every_print_of_the_first_pages_states_its_output(page):
+  """The pages a newcomer reads first: no print there only describes what it prints."""
+  for start, block in _python_blocks_at(ROOT / page):
+    prints = [node.end_lineno for node in ast.parse(block).body
+              if isinstance(node, ast.Expr) and isinstance(node.value, ast.Call)
+              and getattr(node.value.func, "id", None) == "print"]
+    unchecked = sorted(set(prints) - set(claims(block)))
+    assert not unchecked, [f"{page}:{start + line - 1}" for line in unchecked]
+  assert any(claims(block) for block in _python_blocks(ROOT / page))  # Some are checked.
+
+
 # --- The checker itself (no JAX) ------------------------------------------------------------
 
 
