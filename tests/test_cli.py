@@ -1,11 +1,15 @@
 """The demo: it runs, reports its figures, and the row ends against the wall."""
 
+import collections
+import contextlib
 import doctest
 import importlib
 import os
 import subprocess
 import sys
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -14,7 +18,7 @@ from jaxchain import cli, status
 
 
 def test_demo_figures():
-  # 420 steps in chunks of 160: two calls of 160, then one of 100 (a second program).
+  # 420 steps in chunks of 160: two calls of 160, then one of the same program, masked to 100.
   figures = cli.demo(batch=3, steps=420, chunk=160, seed=1, depth=None, iterations=1,
                      friction=0.3, push=20.0, progress=False)
   assert figures["chunks"] == [160, 160, 100]
@@ -32,6 +36,58 @@ def test_demo_figures():
   np.testing.assert_allclose(figures["row_moved_mean"], 2.0, atol=1e-3)  # Gap to the wall.
   assert figures["world_steps_per_s"] > 0 and figures["compile_s"] > 0
   assert figures["status_messages"] == {}
+
+
+# jax.monitoring's event for one XLA compile; its `fun_name` is "jit(<function name>)".
+BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
+
+
+@contextlib.contextmanager
+def compiles():
+  """Counts the XLA compiles inside the block by function name: `{"jit(name)": count}`."""
+  names = collections.Counter()
+
+  def listen(event, duration, **kwargs):
+    del duration
+    if event == BACKEND_COMPILE:
+      names[kwargs.get("fun_name")] += 1
+
+  jax.monitoring.register_event_duration_secs_listener(listen)
+  try:
+    yield names
+  finally:
+    jax.monitoring.unregister_event_duration_listener(listen)
+
+
+def _steppers(names) -> list[str]:
+  """The compiled functions that could hold a step: the demo's chunk, a rollout, a step, a
+  lambda (before issue 31 the demo compiled `jax.jit(jax.vmap(lambda ...: rollout(...)))`)."""
+  return sorted(n for n in names if any(w in n for w in ("chunk", "rollout", "step", "<lambda>")))
+
+
+def test_demo_compiles_one_program_for_any_steps(capsys):
+  """Issue 31: 20 steps in chunks of 8 ran two programs (8 and 4 steps); now one, whose last
+  call masks 4 steps, with the answers of 20 steps taken one by one."""
+  # The smallest step to compile (depth 0, no converging loops, no friction), 2 worlds.
+  with compiles() as names:
+    figures = cli.demo(batch=2, steps=20, chunk=8, seed=1, depth=0, iterations=1,
+                       friction=0.0, push=20.0, progress=False, converge=False)
+  assert figures["chunks"] == [8, 8, 4]
+  assert names["jit(demo_chunk)"] == 1 and _steppers(names) == ["jit(demo_chunk)"], names
+  assert "s (one program: 3 calls of 8 steps, the last masked to 4)\n" in capsys.readouterr().out
+  # The same batch stepped 20 times, one jitted step a call (as `cli.demo` builds it).
+  rng = np.random.default_rng(1)
+  layouts = [jaxchain.scenes.platformer(rng) for _ in range(2)]
+  worlds = jaxchain.stack([p.scene.world(friction=0.0) for p in layouts])
+  config = jaxchain.Config.for_world(worlds, iterations=1, converge=False, depth=0)
+  push = jnp.zeros(worlds.pos.shape).at[:, layouts[0].player, 0].set(20.0)
+  step = jax.jit(jax.vmap(jaxchain.make_step(config)))
+  for _ in range(20):
+    worlds = step(worlds, push)
+  final = figures["final_world"]
+  for name in ("pos", "vel", "status", "crushed", "touching", "sensed", "active"):
+    np.testing.assert_array_equal(getattr(final, name), getattr(worlds, name), err_msg=name)
+  assert not np.array_equal(final.pos, step(worlds, push).pos)  # A 21st step would show.
 
 
 def test_console_script_runs_and_rejects_bad_flags():
@@ -161,11 +217,13 @@ def test_demo_gif_tiles_the_first_worlds(tmp_path, capsys):
 
 def test_level_demo_gif(tmp_path, capsys):
   path = tmp_path / "level.gif"
-  # Chunks of 4, 4 and 2 steps: the remainder's program records its frames too.
-  assert cli.main(["demo", "--level", "sokoban1", "--batch", "1", "--steps", "10", "--chunk",
-                   "4", "--no-progress", "--depth", "0", "--no-converge", "--friction", "0",
-                   "--gif", str(path), "--gif-every", "4", "--gif-size", "32x32",
-                   "--gif-fps", "25"]) == 0
+  # Chunks of 4, 4 and 2 steps, one program: the masked last call records its 2 frames.
+  with compiles() as names:
+    assert cli.main(["demo", "--level", "sokoban1", "--batch", "1", "--steps", "10", "--chunk",
+                     "4", "--no-progress", "--depth", "0", "--no-converge", "--friction", "0",
+                     "--gif", str(path), "--gif-every", "4", "--gif-size", "32x32",
+                     "--gif-fps", "25"]) == 0
+  assert _steppers(names) == ["jit(demo_chunk)"] and names["jit(demo_chunk)"] == 1, names
   assert "gif " in capsys.readouterr().out
   frames, durations = _gif_frames(path)
   assert frames.shape[1:] == (32, 32, 3) and len(frames) <= 4  # Steps 0, 4, 8, 10.

@@ -12,11 +12,12 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 from tqdm import tqdm
 
 from jaxchain import drawing, flags, levels, metrics, scenes, status
 from jaxchain.config import Config
-from jaxchain.stepping import rollout
+from jaxchain.stepping import Trajectory, make_step
 from jaxchain.world import stack
 
 # `--level`: the player's jump, an upward acceleration for one step when grounded
@@ -125,7 +126,11 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   With `level` (a shipped level's name or a path, `jaxchain.levels.load`) it runs that
   level instead: every world a copy with box masses drawn from `seed`, the player
   pushed along +x by `push` and jumping whenever it is grounded (a closed-loop
-  `rollout` policy).
+  policy, `policy(world, t)` as `rollout` takes it).
+
+  It compiles one program, `chunk` steps of the batch (`chunk_program`), and calls it
+  until `steps` are done; when `chunk` does not divide `steps`, the last call masks
+  the steps past the end (the same program: the mask is data).
 
   With `gif` it also writes the rollout of the first `gif.worlds` worlds to a GIF: the
   compiled chunk then also returns their trajectory (so the timed run includes
@@ -138,8 +143,8 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
     status bit set at the end (empty when all is well). For a level, the player's
     mean x travel and how many worlds end with a sensor triggered instead of the row
     figures. With `gif`, also `gif_frames` (frames written) and `gif_bytes`. And, not
-    printed, `final_world` (the batch after the last step) and `chunks` (the steps of
-    each compiled call, `chunk_lengths(steps, chunk)`).
+    printed, `final_world` (the batch after the last step) and `chunks` (the steps
+    each call of the compiled program advances, `chunk_lengths(steps, chunk)`).
 
   Raises:
     ValueError: if `steps` or `chunk` is less than 1.
@@ -160,24 +165,21 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   controls = np.zeros((batch, n, 2), np.float32)
   controls[:, first.player, 0] = push  # The player's input: a constant push to the right.
   controls = jnp.asarray(controls)
+  step_fn = jax.vmap(make_step(config))
 
-  def make_run(length):
-    if gif is None:
-      return jax.jit(jax.vmap(lambda w, u: rollout(w, config, length, u)[0]))
-    return _recording(jax.vmap(lambda w, u: rollout(w, config, length, u, record=_RECORD)),
-                      min(gif.worlds, batch))
+  def advance(worlds, t, controls):  # One step of the batch; the push is the same every step.
+    del t
+    return step_fn(worlds, controls)
 
   print(f"jaxchain demo: {batch} worlds x {n} bodies, {steps} steps of {config.dt:.4f} s, "
         f"depth {config.depth}{' (converging)' if config.converge else ''}, iterations {config.iterations}, friction {friction:g}, "
         f"device {jax.devices()[0].device_kind}")
-  compiled, compile_s = _compile(make_run, lengths, worlds, controls)
+  program = chunk_program(advance, lengths[0], None if gif is None else min(gif.worlds, batch))
+  compiled, compile_s = _compile(program, worlds, controls)
 
   start_row = np.asarray(worlds.pos[:, first.row, 0])
   clips = []
-  calls = {k: (lambda w, fn=fn: fn(w, controls)) for k, fn in compiled.items()}
-  if gif is not None:
-    calls = {k: _keeping(call, clips) for k, call in calls.items()}
-  world, run_s = _run(calls, worlds, lengths, progress)
+  world, run_s = _run(compiled, worlds, lengths, progress, clips, controls)
   messages, finite, penetration = _health(world)
   with np.errstate(invalid="ignore", over="ignore"):
     row_right = np.asarray(world.pos[:, first.row, 0] + world.half[:, first.row, 0])
@@ -203,22 +205,43 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
 _RECORD = ("crushed", "sensed")
 
 
-def _recording(run_batch, k: int):
-  """`jax.jit` of `run_batch(*args) -> (final, traj)`, keeping the trajectory of the
-  first `k` worlds only: `(final, traj[:k])`."""
-  def run(*args):
-    final, traj = run_batch(*args)
-    return final, jax.tree.map(lambda x: x[:k], traj)
-  return jax.jit(run)
+def chunk_program(advance, chunk: int, keep: int | None = None):
+  """The one program a demo run compiles: `chunk` steps of a batch, the steps past a
+  bound masked.
 
+  Args:
+    advance: `advance(worlds, t, *args) -> worlds`, one step of the batch at step
+      index `t` (an int32 scalar, counted from the start of the run).
+    chunk: the steps of one call (static: the scan's length).
+    keep: with a number, the call also returns the trajectory (positions,
+      velocities and `_RECORD`) of the first `keep` worlds; None: nothing recorded.
 
-def _keeping(call, clips: list):
-  """`call(world) -> (world, piece)` as `world -> world`, appending each piece."""
-  def kept(world):
-    world, piece = call(world)
-    clips.append(piece)
-    return world
-  return kept
+  Returns:
+    `jax.jit` of `run(worlds, start, stop, *args) -> (worlds, piece)`: steps
+    `t = start, ..., start + chunk - 1`, where each step with `t >= stop` keeps the
+    world as it is and computes nothing (a `lax.cond` on data, outside the batch), so
+    one program runs every call of a run, the last, shorter one too. `piece` is a
+    `Trajectory` of `[keep, chunk, ...]` arrays (the masked steps repeat the last
+    state), or None.
+
+  Examples:
+    >>> run = chunk_program(lambda x, t: x + t, 4)  # "Worlds" that add up the step indices.
+    >>> x, _ = run(jnp.zeros((), jnp.int32), np.int32(0), np.int32(4))  # Steps 0-3.
+    >>> x, _ = run(x, np.int32(4), np.int32(6))  # Steps 4 and 5; 6 and 7 masked.
+    >>> int(x)  # 0 + 1 + ... + 5, by one program.
+    15
+  """
+  def demo_chunk(worlds, start, stop, *args):
+    def body(worlds, k):
+      t = start + k
+      worlds = lax.cond(t < stop, lambda w: advance(w, t, *args), lambda w: w, worlds)
+      if keep is None:
+        return worlds, None
+      return worlds, Trajectory(**{name: getattr(worlds, name)[:keep]
+                                   for name in ("pos", "vel", *_RECORD)})
+    worlds, traj = lax.scan(body, worlds, jnp.arange(chunk, dtype=jnp.int32))
+    return worlds, jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), traj)  # Worlds first.
+  return jax.jit(demo_chunk)
 
 
 def _write_gif(gif: GifOptions, worlds, clips: list, player: int) -> dict:
@@ -258,12 +281,12 @@ def tile(frames: np.ndarray, border: int = GIF_BORDER) -> np.ndarray:
 
 
 def chunk_lengths(steps: int, chunk: int) -> list[int]:
-  """The steps of each compiled call for a run of `steps` steps in chunks of `chunk`.
+  """The steps each call advances, for a run of `steps` steps in chunks of `chunk`.
 
   `steps // chunk` calls of `chunk` steps, then one of the remainder if `chunk` does not
-  divide `steps` (a second program, compiled only then). A chunk longer than the run is
-  the run. Chunked or not, the answers are those of one rollout of `steps` steps
-  (`tests/test_cli.py` checks it).
+  divide `steps`: the same program (`chunk_program`), with the steps past the end
+  masked. A chunk longer than the run is the run. Chunked or not, the answers are those
+  of one rollout of `steps` steps (`tests/test_cli.py` checks it).
 
   Examples:
     >>> chunk_lengths(600, 50) == [50] * 12
@@ -280,22 +303,28 @@ def chunk_lengths(steps: int, chunk: int) -> list[int]:
   return [chunk] * (steps // chunk) + ([steps % chunk] if steps % chunk else [])
 
 
-def _compile(make_run, lengths: list[int], *args) -> tuple[dict, float]:
-  """`({length: compiled call}, seconds)`: `make_run(length)` compiled ahead of time
-  for each distinct chunk length (one, or two with a remainder), compile time summed."""
+def _compile(program, worlds, *args) -> tuple[jax.stages.Compiled, float]:
+  """`(compiled, seconds)`: `program` (from `chunk_program`) compiled ahead of time for
+  `worlds` and `args`, the one compile of a run."""
   t0 = time.perf_counter()
-  compiled = {k: make_run(k).lower(*args).compile() for k in dict.fromkeys(lengths)}
+  bound = np.int32(0)  # `start` and `stop` are int32 scalars: data, not part of the program.
+  compiled = program.lower(worlds, bound, bound, *args).compile()
   return compiled, time.perf_counter() - t0
 
 
-def _run(calls: dict, world, lengths: list[int], progress: bool):
-  """`calls[length]` in turn for each chunk length, from `world`, with a progress bar:
-  the final world and the run time."""
+def _run(compiled, world, lengths: list[int], progress: bool, clips: list, *args):
+  """`compiled` once per chunk length, from `world`, with a progress bar: the final
+  world and the run time. Appends each call's recorded piece, cut to the steps it
+  ran, to `clips` (when it records)."""
   t0 = time.perf_counter()
+  start = 0
   with tqdm(total=sum(lengths), unit="step", disable=not progress, file=sys.stderr) as bar:
     for length in lengths:
-      world = calls[length](world)
+      world, piece = compiled(world, np.int32(start), np.int32(start + length), *args)
       jax.block_until_ready(world)
+      if piece is not None:
+        clips.append(jax.tree.map(lambda x, n=length: x[:, :n], piece))
+      start += length
       bar.update(length)
   return world, time.perf_counter() - t0
 
@@ -316,10 +345,10 @@ def _health(world) -> tuple[dict[str, int], bool, float]:
 
 
 def _print_timing(figures: dict) -> None:
-  sizes = list(dict.fromkeys(figures["chunks"]))
-  programs = "" if len(sizes) == 1 else (
-      f" ({len(sizes)} programs: chunks of {' and '.join(map(str, sizes))} steps)")
-  print(f"compile time          {figures['compile_s']:8.2f} s{programs}")
+  chunks = figures["chunks"]
+  calls = f"{len(chunks)} call{'s' * (len(chunks) > 1)} of {chunks[0]} steps" + (
+      f", the last masked to {chunks[-1]}" if chunks[-1] != chunks[0] else "")
+  print(f"compile time          {figures['compile_s']:8.2f} s (one program: {calls})")
   print(f"run time              {figures['run_s']:8.2f} s")
   print(f"world-steps/s         {figures['world_steps_per_s']:12.4g}")
   print(f"body-steps/s          {figures['body_steps_per_s']:12.4g}")
@@ -358,21 +387,20 @@ def _level_demo(level, batch, lengths, seed, depth, iterations, friction, push,
     up = jnp.where(flags.grounded(world)[player], JUMP, 0.0)
     return jnp.zeros_like(world.pos).at[player].set(jnp.stack([jnp.asarray(push, up.dtype), up]))
 
-  def make_run(length):
-    if gif is None:
-      return jax.jit(jax.vmap(lambda w: rollout(w, config, length, policy=policy)[0]))
-    return _recording(jax.vmap(lambda w: rollout(w, config, length, policy=policy,
-                                                 record=_RECORD)), min(gif.worlds, batch))
+  step_fn = jax.vmap(make_step(config))
+
+  def advance(worlds, t):  # One step of the batch, the policy's push and jump in it.
+    return step_fn(worlds, jax.vmap(policy, in_axes=(0, None))(worlds, t))
 
   print(f"jaxchain demo --level {level.name}: {batch} worlds x {n} bodies, {steps} steps of "
         f"{config.dt:.4f} s, depth {config.depth}{' (converging)' if config.converge else ''}, "
         f"iterations {config.iterations}, friction {friction:g}, one-way "
         f"{'on' if config.one_way else 'off'}, sensors {'on' if config.sensors else 'off'}, "
         f"device {jax.devices()[0].device_kind}")
-  compiled, compile_s = _compile(make_run, lengths, worlds)
+  program = chunk_program(advance, lengths[0], None if gif is None else min(gif.worlds, batch))
+  compiled, compile_s = _compile(program, worlds)
   clips = []
-  calls = compiled if gif is None else {k: _keeping(fn, clips) for k, fn in compiled.items()}
-  world, run_s = _run(calls, worlds, lengths, progress)
+  world, run_s = _run(compiled, worlds, lengths, progress, clips)
   messages, finite, penetration = _health(world)
   travel = np.asarray(world.pos[:, player, 0] - worlds.pos[:, player, 0])
   triggered = int(np.sum(np.any(np.asarray(world.sensed), axis=-1)))
@@ -397,8 +425,8 @@ def main(argv=None) -> int:
   p.add_argument("--batch", type=_positive_int, default=1024, help="worlds in parallel (default 1024)")
   p.add_argument("--steps", type=_positive_int, default=600, help="time steps of 1/60 s (default 600)")
   p.add_argument("--chunk", type=_positive_int, default=50,
-                 help="steps per compiled call (default 50); if it does not divide --steps, "
-                      "a last, shorter call runs the rest (compiled once more)")
+                 help="steps per call of the one compiled program (default 50); if it does "
+                      "not divide --steps, the last call masks the steps past the end")
   p.add_argument("--seed", type=_nonnegative_int, default=0, help="seed for the box masses (default 0)")
   p.add_argument("--depth", type=_nonnegative_int, default=None,
                  help="chain depth K, 0 for pairwise Jacobi (default: from the scene)")
