@@ -5,6 +5,7 @@ import contextlib
 import doctest
 import importlib
 import os
+import re
 import subprocess
 import sys
 
@@ -110,6 +111,42 @@ def test_docstring_examples(name):
   module = importlib.import_module(f"jaxchain.{name}")
   result = doctest.testmod(module, extraglobs={"jc": jaxchain}, optionflags=doctest.ELLIPSIS)
   assert result.attempted > 0 and result.failed == 0
+
+
+# How `jaxchain demo --help` states each flag's default (issue 31: --iterations did not).
+HELP_DEFAULTS = {
+    "--batch": "1024", "--steps": "600", "--chunk": "50", "--seed": "0",
+    "--depth": "from the scene", "--iterations": "1", "--friction": "0.3", "--push": "20",
+    "--converge": "on", "--level": "none", "--gif": "none", "--gif-worlds": "4",
+    "--gif-size": "96x160", "--gif-every": "2", "--gif-fps": "30", "--no-progress": "off",
+}
+
+
+def test_help_states_every_default(capsys):
+  with pytest.raises(SystemExit) as exit_info:
+    cli.main(["demo", "--help"])
+  assert exit_info.value.code == 0
+  options = capsys.readouterr().out.split("\noptions:\n")[1]
+  # One entry per flag: its line and the indented lines below, whitespace collapsed.
+  entries = {}
+  for entry in re.split(r"\n(?=  -)", options.strip("\n")):
+    flag = entry.split()[0].rstrip(",")
+    entries[flag] = " ".join(entry.split())
+  assert set(entries) == set(HELP_DEFAULTS) | {"-h"}  # Every flag is in the table.
+  for flag, shown in HELP_DEFAULTS.items():
+    assert re.search(rf"\(default: {re.escape(shown)}\b", entries[flag]), entries[flag]
+  # What the help says is the default is the default.
+  defaults = cli.build_parser()[0].parse_args(["demo"])
+  for flag, shown in HELP_DEFAULTS.items():
+    value = getattr(defaults, flag[2:].replace("-", "_"))
+    if isinstance(value, bool):
+      assert shown == ("on" if value else "off"), flag
+    elif isinstance(value, (int, float)):
+      assert float(shown) == value, flag
+    elif isinstance(value, tuple):
+      assert shown == "x".join(map(str, value)), flag
+    else:
+      assert value is None and flag in ("--depth", "--level", "--gif"), flag
 
 
 @pytest.mark.parametrize("flags, message", [

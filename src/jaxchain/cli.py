@@ -418,43 +418,55 @@ def _level_demo(level, batch, lengths, seed, depth, iterations, friction, push,
   return figures
 
 
-def main(argv=None) -> int:
+def build_parser() -> tuple[argparse.ArgumentParser, argparse.ArgumentParser]:
+  """The `jaxchain` parser and its `demo` subparser; `--help` states every default."""
   parser = argparse.ArgumentParser(prog="jaxchain", description=__doc__)
   sub = parser.add_subparsers(dest="command", required=True)
   p = sub.add_parser("demo", help="simulate the built-in platformer scene in many worlds at once")
-  p.add_argument("--batch", type=_positive_int, default=1024, help="worlds in parallel (default 1024)")
-  p.add_argument("--steps", type=_positive_int, default=600, help="time steps of 1/60 s (default 600)")
+  p.add_argument("--batch", type=_positive_int, default=1024,
+                 help="worlds in parallel (default: 1024)")
+  p.add_argument("--steps", type=_positive_int, default=600,
+                 help="time steps of 1/60 s (default: 600)")
   p.add_argument("--chunk", type=_positive_int, default=50,
-                 help="steps per call of the one compiled program (default 50); if it does "
+                 help="steps per call of the one compiled program (default: 50); if it does "
                       "not divide --steps, the last call masks the steps past the end")
-  p.add_argument("--seed", type=_nonnegative_int, default=0, help="seed for the box masses (default 0)")
+  p.add_argument("--seed", type=_nonnegative_int, default=0,
+                 help="seed for the box masses (default: 0)")
   p.add_argument("--depth", type=_nonnegative_int, default=None,
                  help="chain depth K, 0 for pairwise Jacobi (default: from the scene)")
-  p.add_argument("--iterations", type=_positive_int, default=1, help="resolution passes per step")
+  p.add_argument("--iterations", type=_positive_int, default=1,
+                 help="resolution passes per step (default: 1)")
   p.add_argument("--friction", type=_nonnegative_float, default=0.3,
-                 help="Coulomb friction of every body (default 0.3)")
+                 help="Coulomb friction of every body (default: 0.3)")
   p.add_argument("--push", type=_finite_float, default=20.0,
-                 help="player's push acceleration (default 20)")
+                 help="player's push acceleration (default: 20)")
   p.add_argument("--converge", action=argparse.BooleanOptionalAction, default=True,
                  help="forward-only hop loops that stop once every world has converged "
-                      "(same answers; the demo takes no gradients; default on)")
+                      "(same answers; the demo takes no gradients) (default: on)")
   p.add_argument("--level", default=None, metavar="NAME|PATH",
                  help="run a level instead of the built-in scene: a shipped level "
                       f"({', '.join(levels.names())}) or a .txt/.xsb/.tmj/.json/.tmx file; the "
-                      "player is pushed by --push and jumps when grounded")
+                      "player is pushed by --push and jumps when grounded (default: none, "
+                      "the built-in scene)")
   p.add_argument("--gif", default=None, metavar="PATH",
                  help="also write the rollout of the first --gif-worlds worlds to an animated "
-                      "GIF (tiled in a grid; works with --level)")
+                      "GIF (tiled in a grid; works with --level) (default: none, no GIF)")
   p.add_argument("--gif-worlds", type=_positive_int, default=4,
-                 help="worlds in the GIF, the first of the batch (default 4)")
+                 help="worlds in the GIF, the first of the batch (default: 4)")
   p.add_argument("--gif-size", type=_size, default=(96, 160), metavar="HxW",
-                 help="pixels of each world's tile (default 96x160)")
+                 help="pixels of each world's tile (default: 96x160)")
   p.add_argument("--gif-every", type=_positive_int, default=2,
-                 help="one frame every this many steps (default 2: 30 frames per simulated s)")
+                 help="one frame every this many steps (default: 2, 30 frames per simulated s)")
   p.add_argument("--gif-fps", type=_gif_fps, default=30.0,
-                 help="frames per second of the GIF, at most 50 (default 30: real time "
+                 help="frames per second of the GIF, at most 50 (default: 30, real time "
                       "with --gif-every 2)")
-  p.add_argument("--no-progress", action="store_true", help="no progress bar")
+  p.add_argument("--no-progress", action="store_true",
+                 help="no progress bar (default: off, a progress bar on stderr)")
+  return parser, p
+
+
+def main(argv=None) -> int:
+  parser, p = build_parser()
   args = parser.parse_args(argv)
   if args.command == "demo":
     if args.level is not None:
