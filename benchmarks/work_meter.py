@@ -1,10 +1,11 @@
 """The work meter: how much one step computes, counted, not timed (issue 23).
 
-Walks the jaxpr of one step of one world and counts, for every primitive, the elements
+Walks the jaxpr of one step of a batch of worlds (`BATCH` copies of a scene: the core is
+batched by hand, batch minor) and counts, for every primitive, the elements
 it produces and, for gathers, the elements it gathers; the body of a `scan` (every
 static-trip `fori_loop` is one) counts `length` times, a `while_loop` (`converge`) once
 per iteration of its static bound (its upper limit; the meter runs the fixed-depth
-step). Divided by the bodies, that is elements per body-step, split by stage (the
+step). Divided by bodies x worlds, that is elements per body-step, split by stage (the
 jaxchain function that made the equation: broadphase, contacts, link table, chain
 hops, impulses, friction, ...). It does not depend on the machine or its load: the
 figure to watch while changing the step, and what `tests/test_work_meter.py` holds
@@ -40,29 +41,31 @@ from _bench import add_common_args, machine, out_dir
 
 # Stage of an equation: the innermost jaxchain frame that is not a shared helper, by
 # (file, function prefix); first match wins. Helpers (gathers, reductions over link
-# slots, safe division, loops) count toward the stage that called them.
+# slots, safe division, loops) count toward the stage that called them. The files are
+# the core's (`jaxchain/core/`), plus the public entry points (`stepping.py`: the
+# transposes into and out of the batch-minor layout) and the sharding wrapper.
 HELPERS = {
-    ("gather.py", ""), ("sharding.py", ""), ("geometry.py", "Links."), ("geometry.py", "opposite"),
-    ("geometry.py", "_materialise"), ("geometry.py", "Candidates."), ("chain.py", "safe_divide"),
-    ("chain.py", "repeat"), ("chain.py", "behind"), ("chain.py", "_along"),
+    ("layout.py", ""), ("sharding.py", ""), ("contacts.py", "Links."),
+    ("pairs.py", "Candidates."), ("pairs.py", "first_set"), ("chain.py", "repeat"),
+    ("flags.py", "bit"),
 }
 STAGES = [
-    ("broadphase.py", "", "broadphase"),
-    ("geometry.py", "first_set", "link table"),
-    ("geometry.py", "link_table", "link table"),
-    ("geometry.py", "by_direction", "link table"),
-    ("geometry.py", "links", "link table"),
-    ("geometry.py", "", "contacts"),
+    ("pairs.py", "", "broadphase"),
+    ("contacts.py", "link_table", "link table"),
+    ("contacts.py", "touching", "flags, sensors"),
+    ("contacts.py", "", "contacts"),
     ("chain.py", "backing", "chain: backing"),
     ("chain.py", "displacement.<locals>.push_hop", "chain: push"),
     ("chain.py", "displacement.<locals>.refine", "chain: refine"),
     ("chain.py", "displacement.<locals>.velocity_change", "chain: refine"),
-    ("chain.py", "_link_impulses", "chain: impulses"),
+    ("chain.py", "link_impulses", "chain: impulses"),
+    ("chain.py", "apply_impulses", "chain: refine"),
+    ("chain.py", "crush", "crush"),
     ("chain.py", "", "chain: split"),
-    ("velocity.py", "crush", "crush"),
-    ("velocity.py", "", "friction"),
+    ("friction.py", "", "friction"),
     ("flags.py", "", "flags, sensors"),
-    ("stepping.py", "", "integrate, step"),
+    ("step.py", "", "integrate, step"),
+    ("stepping.py", "", "layout (transposes)"),
 ]
 ORDER = list(dict.fromkeys(s for _, _, s in STAGES)) + ["other"]
 
@@ -113,7 +116,7 @@ def _sub_jaxprs(eqn, times: int):
   if name == "while":
     return None  # Handled by the caller (needs the bound).
   if name == "cond":
-    return [(b.jaxpr, times) for b in p["branches"]]
+    return "cond"  # Handled by the caller (one branch runs).
   subs = []
   for value in p.values():
     inner = getattr(value, "jaxpr", value)
@@ -122,30 +125,48 @@ def _sub_jaxprs(eqn, times: int):
   return subs
 
 
-def walk(jaxpr, times: int, count: Count, while_trips: int, outer: str = "other") -> None:
+def walk(jaxpr, times: int, count: Count, while_trips: int, outer: str = "other",
+         branch: str = "common") -> None:
   """Counts `jaxpr`'s equations into `count`, `times` each. An equation whose traceback
   names no jaxchain stage takes the stage of the equation it is inside (`outer`): JAX
-  caches the jaxprs of its own jitted helpers (`jnp.where`, ...) and of custom rules
-  (`gather.take`), so their equations carry the traceback of their first trace."""
+  caches the jaxprs of its own jitted helpers (`jnp.where`, ...) and of custom rules,
+  so their equations carry the traceback of their first trace.
+
+  A `cond` runs one branch: `branch="common"` counts its cheapest (the core's conds skip
+  work a batch does not need: the seam rule without corner contacts, the second link
+  slot where no body has a second link), `"worst"` its most expensive."""
   for eqn in jaxpr.eqns:
     stage = _stage(eqn)
     stage = outer if stage == "other" else stage
     subs = _sub_jaxprs(eqn, times)
+    if subs == "cond":
+      options = []
+      for b in eqn.params["branches"]:
+        c = Count()
+        walk(b.jaxpr, times, c, while_trips, stage, branch)
+        options.append(c)
+      pick = (min if branch == "common" else max)(options, key=lambda c: sum(c.elements.values()))
+      count.elements.update(pick.elements)
+      count.gathered.update(pick.gathered)
+      count.primitives.update(pick.primitives)
+      count.while_loops += pick.while_loops
+      continue
     if subs is None:  # A while loop: counted at `while_trips` iterations.
       count.while_loops += 1
       subs = [(eqn.params["body_jaxpr"].jaxpr, times * while_trips),
               (eqn.params["cond_jaxpr"].jaxpr, times * while_trips)]
     if subs:
       for sub, t in subs:
-        walk(sub, t, count, while_trips, stage)
+        walk(sub, t, count, while_trips, stage, branch)
     else:
       count.add(eqn, times, stage)
 
 
-def meter(fn, *args, while_trips: int = 1) -> Count:
-  """The `Count` of one call of `fn(*args)` (traced, never run)."""
+def meter(fn, *args, while_trips: int = 1, branch: str = "common") -> Count:
+  """The `Count` of one call of `fn(*args)` (traced, never run); `branch`: which branch
+  of a `cond` counts (`walk`)."""
   count = Count()
-  walk(jax.make_jaxpr(fn)(*args).jaxpr, 1, count, while_trips)
+  walk(jax.make_jaxpr(fn)(*args).jaxpr, 1, count, while_trips, branch=branch)
   return count
 
 
@@ -180,6 +201,13 @@ def platformer_level():
 SCENES = {"room of 64": room64, "demo": demo, "platformer1": platformer_level}
 
 
+# Worlds per metered step: the core runs a batch of worlds at once (batch minor), so the
+# meter counts one step of this many copies of the scene and divides by bodies x worlds
+# (the counts per body-step hardly depend on it; a batch shows the per-step overheads
+# at their real, amortised size).
+BATCH = 8
+
+
 def scene_counts(smoke: bool = False) -> dict[str, dict]:
   """`{scene: {"bodies", "config", "elements", "gathered", "stages"}}`, per body-step."""
   import jaxchain as jc
@@ -187,12 +215,17 @@ def scene_counts(smoke: bool = False) -> dict[str, dict]:
   for name, make in SCENES.items():
     world, config = make(8) if (smoke and name == "room of 64") else make()
     n = world.num_bodies
-    count = meter(lambda w: jc.step(w, config), world)
-    stages = {s: [count.elements[s] / n, count.gathered[s] / n] for s in ORDER
+    batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (BATCH,) + x.shape), world)
+    count = meter(lambda w: jc.step(w, config), batch)
+    worst = meter(lambda w: jc.step(w, config), batch, branch="worst")
+    per = n * BATCH
+    count_per = lambda c, s: c[s] / per
+    stages = {s: [count_per(count.elements, s), count_per(count.gathered, s)] for s in ORDER
               if count.elements[s]}
     out[name] = dict(bodies=n, config=_config_line(config),
-                     elements=sum(count.elements.values()) / n,
-                     gathered=sum(count.gathered.values()) / n, stages=stages,
+                     elements=sum(count.elements.values()) / per,
+                     gathered=sum(count.gathered.values()) / per, stages=stages,
+                     worst=[sum(worst.elements.values()) / per, sum(worst.gathered.values()) / per],
                      while_loops=count.while_loops)
   return out
 
@@ -225,12 +258,14 @@ def _against(commit: str, smoke: bool) -> dict:
 
 
 def table(results: dict[str, dict], against: dict[str, dict] | None = None) -> list[str]:
-  lines = ["| scene | bodies | elements / body-step | gathered / body-step | config |",
-           "|---|---|---|---|---|"]
+  lines = ["| scene | bodies | elements / body-step | gathered / body-step | worst branch: "
+           "elements / gathered | config |", "|---|---|---|---|---|---|"]
   for label, res in [("", results)] + [(f" at {c}", r) for c, r in (against or {}).items()]:
     for name, r in res.items():
+      worst = r.get("worst")
+      worst = "-" if worst is None else f"{worst[0]:,.0f} / {worst[1]:,.0f}"
       lines.append(f"| {name}{label} | {r['bodies']} | {r['elements']:,.0f} | "
-                   f"{r['gathered']:,.0f} | {r['config']} |")
+                   f"{r['gathered']:,.0f} | {worst} | {r['config']} |")
   return lines
 
 
@@ -251,11 +286,15 @@ def main(argv=None) -> None:
   results = scene_counts(args.smoke)
   against = {c: _against(c, args.smoke) for c in args.against}
   lines = ["# Work meter: elements per body-step", "",
-           f"{machine()}. Counted from the jaxpr of one step of one world (`python "
+           f"{machine()}. Counted from the jaxpr of one step of a batch of `BATCH` copies of each scene (`python "
            "benchmarks/work_meter.py`): every equation's output elements, gathers' "
-           "elements apart, loop bodies times their trip counts; per body. Deterministic: "
-           "it does not depend on the machine or its load. Issue 23's budget for the "
-           "room of 64: must <= 6,000 / <= 500, goal <= 3,000 / <= 250.", ""]
+           "elements apart, loop bodies times their trip counts; per body and world. Deterministic: "
+           "it does not depend on the machine or its load. Where the step branches "
+           "(`lax.cond` over the batch: the seam rule only with a corner contact, the "
+           "second link slot only where a body has a second link) the main columns count "
+           "the cheaper branch, the common case; the worst-branch column the dearer. "
+           "Issue 27's budget for the room of 64: must <= 6,000 / <= 500, goal <= 3,000 / "
+           "<= 250.", ""]
   lines += table(results, against) + [""]
   for name, r in results.items():
     lines += stage_table(name, r)

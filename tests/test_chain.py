@@ -206,10 +206,17 @@ def test_second_call_does_not_recompile():
   assert jc.resolve._cache_size() == size
 
 
-def test_batched_world_without_vmap_is_a_clear_error():
-  batch = jc.stack([scenes.push_chain(2).world()] * 2)
-  with pytest.raises(ValueError, match="jax.vmap"):
-    jc.resolve(batch, DEEP)
+def test_a_batch_resolves_as_its_worlds_do():
+  # `resolve` takes a batch (`[B, n, ...]`) directly (issue 27), with the answers of the
+  # vmapped call and of each world alone; a world of the wrong rank is a clear error.
+  batch = jc.stack([scenes.push_chain(2).world(), scenes.push_chain(2, overlap=0.2).world()])
+  got = jc.resolve(batch, DEEP)
+  assert np.array_equal(np.asarray(got.pos), np.asarray(jax.vmap(jc.resolve, (0, None))(batch, DEEP).pos))
+  for b in range(2):
+    one = jc.resolve(jax.tree.map(lambda x: x[b], batch), DEEP)
+    assert np.array_equal(np.asarray(got.pos[b]), np.asarray(one.pos))
+  with pytest.raises(ValueError, match=r"pos of shape \(n, 2\)"):
+    jc.resolve(jax.tree.map(lambda x: x[None], batch), DEEP)
 
 
 # --- Gradients ---------------------------------------------------------------------------

@@ -476,12 +476,21 @@ def test_resolve_flags_non_finite_positions():
   assert out.status & jc.status.NON_FINITE
 
 
-def test_make_step_rejects_a_batch_like_step():
-  batch = jc.stack([jc.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0)] * 2)
-  with pytest.raises(ValueError, match="single world.*jax.vmap"):
-    jc.make_step(jc.Config())(batch)
-  with pytest.raises(ValueError, match="single world.*jax.vmap"):
-    jc.step(batch, jc.Config())
+def test_make_step_takes_a_batch_like_step():
+  # A batch (`[B, n, ...]`) steps directly (issue 27): the same bits as the vmapped step
+  # and as each world alone; a wrong accel shape is a clear error.
+  batch = jc.stack([jc.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0),
+                    jc.World.create([[1.0, 2.0]], [0.5, 0.5], 2.0)])
+  cfg = jc.Config()
+  accel = jnp.asarray([[[1.0, 0.0]], [[0.0, 3.0]]], jnp.float32)
+  want = jax.vmap(jc.step, (0, None, 0))(batch, cfg, accel)
+  for got in (jc.make_step(cfg)(batch, accel), jc.step(batch, cfg, accel)):
+    assert np.array_equal(np.asarray(got.pos), np.asarray(want.pos))
+    assert np.array_equal(np.asarray(got.vel), np.asarray(want.vel))
+  one = jc.step(jax.tree.map(lambda x: x[1], batch), cfg, accel[1])
+  assert np.array_equal(np.asarray(want.vel[1]), np.asarray(one.vel))
+  with pytest.raises(ValueError, match="accel must have the shape of pos"):
+    jc.step(batch, cfg, accel[0])
 
 
 def test_switched_off_feature_with_values_set_is_reported():
@@ -673,7 +682,7 @@ def test_energy_scale_keeps_dissipative_updates_and_scales_down_gaining_ones():
 def test_a_scaled_update_is_reported(monkeypatch):
   # Without the refinement the chain's estimate for this fan would add energy: the guard
   # scales it and the world says so.
-  monkeypatch.setattr(jc.chain, "REFINE", 0)
+  monkeypatch.setattr(jc.core.chain, "REFINE", 0)
   world = jc.World.create([[-0.45, 1.101], [0.45, 1.15], [0.0, 0.6], [0.0, 0.0]],
                           [[0.4, 0.4], [0.4, 0.4], [0.8, 0.1], [0.5, 0.5]], [500.0, 1e4, 2.0, 4e3],
                           vel=[[0.0, -8.0], [0.0, -10.0], [0.0, -2.0], [0.0, -2.0]])

@@ -38,11 +38,11 @@ import jax
 from jax.sharding import PartitionSpec as P
 
 
-def in_auto_axes(fn: Callable[..., Any], *args: Any) -> Any:
+def in_auto_axes(fn: Callable[..., Any], *args: Any, batched: bool = False) -> Any:
   """`fn(*args)` with every explicit axis of the context mesh made `AxisType.Auto`.
 
-  For per-world code (the body of `jc.step`, `jc.rollout`, `jc.resolve`) that may run
-  under a user's `jax.vmap` with the batch sharded over an explicit mesh axis. JAX
+  For code that may run on a batch sharded over an explicit mesh axis: the core (on a
+  whole batch, `batched=True`) and per-world code under a user's `jax.vmap`. JAX
   0.10.1 rejects such a batch in several batching rules that the step relies on: a
   `jnp.where` of a per-world scalar between constants (`select_n`), a gather from an
   operand that is not batched with batched indices, and a loop carry that starts as an
@@ -50,13 +50,16 @@ def in_auto_axes(fn: Callable[..., Any], *args: Any) -> Any:
   Inside `jax.sharding.auto_axes` those axes are Auto and the program is partitioned as
   it is for an Auto mesh: no collectives, the same bits as on one device. The outputs
   come back replicated per world (`P()`), so a vmapped batch stays sharded along its
-  batch axis. The mesh is the context mesh (`jax.set_mesh`), else the one the arrays
-  of `args` are typed with (see `mesh_of`). Without a mesh, or with no explicit axes,
-  it just calls `fn(*args)`.
+  batch axis; with `batched=True` every output's leading axis is the batch and comes
+  back sharded as the inputs' leading axis is. The mesh is the context mesh
+  (`jax.set_mesh`), else the one the arrays of `args` are typed with (see `mesh_of`).
+  Without a mesh, or with no explicit axes, it just calls `fn(*args)`.
 
   Args:
     fn: a function of arrays (pytrees) returning arrays (pytrees).
     *args: its arguments.
+    batched: every array of `args` and of the outputs has the batch of worlds as its
+      leading axis.
 
   Returns:
     `fn(*args)`.
@@ -66,14 +69,28 @@ def in_auto_axes(fn: Callable[..., Any], *args: Any) -> Any:
     typed = mesh_of(args)
     if typed is not None:
       with jax.sharding.use_abstract_mesh(typed):
-        return _auto(fn, typed, args)
+        return _auto(fn, typed, args, batched)
   if mesh.empty or not mesh.explicit_axes:
     return fn(*args)
-  return _auto(fn, mesh, args)
+  return _auto(fn, mesh, args, batched)
 
 
-def _auto(fn: Callable[..., Any], mesh: jax.sharding.AbstractMesh, args: tuple) -> Any:
-  return jax.sharding.auto_axes(fn, axes=mesh.explicit_axes, out_sharding=P())(*args)
+def _auto(fn: Callable[..., Any], mesh: jax.sharding.AbstractMesh, args: tuple,
+          batched: bool = False) -> Any:
+  out = P(_batch_axes(args)) if batched else P()
+  return jax.sharding.auto_axes(fn, axes=mesh.explicit_axes, out_sharding=out)(*args)
+
+
+def _batch_axes(tree: Any):
+  """The mesh axes the leading (batch) axis of the arrays of `tree` is sharded over
+  (`None`: not sharded), as their types say."""
+  for leaf in jax.tree.leaves(tree):
+    if not isinstance(leaf, jax.Array) or leaf.ndim == 0:
+      continue
+    spec = getattr(getattr(jax.typeof(leaf), "sharding", None), "spec", None)
+    if spec and spec[0] is not None:
+      return spec[0]
+  return None
 
 
 def mesh_of(tree: Any) -> jax.sharding.AbstractMesh | None:

@@ -1,11 +1,16 @@
-"""Time stepping: integrate, resolve, update velocities, friction; and rollouts.
+"""The public entry points of the step: `step`, `make_step`, `resolve`, `rollout`.
 
-`step` is a flat pipeline of small stages. Every stage that a config switches
-off (gravity, friction, immovable handling, substeps) is left out by a Python
-`if` on the static config, so it is not traced at all.
+They take a single world (`[n, ...]`) or a batch (`[B, n, ...]`) and run the batch-minor
+core (`jaxchain.core`) on it, transposing once on the way in and once on the way out
+(a rollout stays batch-minor through its scan). A user's own `jax.vmap` over `step`,
+`resolve` or `rollout` (and over an environment's `step`, which calls them) reaches the
+same core: the single-world functions are `jax.custom_batching.custom_vmap` functions
+whose batching rule runs the core on the whole batch (nested `vmap`s fold into one
+batch), inside a `jax.custom_jvp` whose tangent rule is the plain core at one world, so
+`jax.grad` and `jax.jvp` work under every combination of transformations.
 
-The module is `jaxchain.stepping`: `jaxchain.step` is the function (re-exported
-by the package), which would shadow a module of that name.
+The module is `jaxchain.stepping`: `jaxchain.step` is the function (re-exported by the
+package), which would shadow a module of that name.
 """
 
 from __future__ import annotations
@@ -16,9 +21,9 @@ from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
-from jax import lax
+from jax.custom_batching import custom_vmap
 
-from jaxchain import broadphase, chain, flags, geometry, status, velocity
+from jaxchain import core
 from jaxchain.config import Config
 from jaxchain.sharding import in_auto_axes
 from jaxchain.world import World
@@ -27,7 +32,7 @@ from jaxchain.world import World
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Trajectory:
-  """Per-step states of a rollout.
+  """Per-step states of a rollout (with a leading batch axis `[B, ...]` for a batch).
 
   Attributes:
     pos: `[t, n, 2]` centres after each step.
@@ -50,121 +55,165 @@ class Trajectory:
 RECORDABLE = ("status", "touching", "crushed", "sensed")  # Opt-in `Trajectory` fields.
 
 
-def _check_single(world: World, fn: str, batch_hint: str | None = None) -> None:
-  if world.pos.ndim != 2:
-    hint = batch_hint or (f"jax.vmap({fn}, in_axes=(0, None)) or "
-                          f"functools.partial(jc.{fn}, config=cfg)")
-    raise ValueError(
-        f"{fn}: expected a single world with pos of shape (n, 2), got {world.pos.shape}; "
-        f"for a batch use {hint}")
+def _check_world(world: World, fn: str) -> bool:
+  """Whether `world` is a batch (`[B, n, 2]` positions) rather than one world."""
+  if world.pos.ndim not in (2, 3) or world.pos.shape[-1] != 2:
+    raise ValueError(f"{fn}: expected a world with pos of shape (n, 2), or a batch of worlds "
+                     f"(B, n, 2), got {world.pos.shape}")
+  return world.pos.ndim == 3
 
 
-def _passes(world: World, pos: jax.Array, config: Config, *, start: jax.Array | None = None,
-            vel: jax.Array | None = None, table: broadphase.Neighbors | None = None):
-  """`config.iterations` resolution passes from `pos`.
+def _xy_minor(x: jax.Array) -> jax.Array:
+  """`[B, ..., n, 2]` -> `[..., 2, n, B]` (controls, accelerations)."""
+  x = jnp.moveaxis(x, 0, -1)  # [..., n, 2, B]
+  return jnp.swapaxes(x, -3, -2)
 
-  A pass is a flat pipeline, one call a stage, each reading what the stages before it
-  built at the positions the pass starts from: candidates (broadphase), contacts and
-  links (`geometry.links`, built once and read by every later stage), resolution
-  (`chain.displacement`: the push hops carry the positions and, with `vel`, the
-  contact impulses in the same hops), velocities (the impulses, then the crush rule),
-  friction, flags. So a pass's velocities always follow its positions. With
-  `config.neighbors` every pass reads one neighbour table, `table` or built here at
-  `pos` (`broadphase.build`), and checks its margin.
 
-  Returns:
-    `(pos, vel, status, crushed, touching)` (`vel` None without `vel`; `touching`
-    `[4, n]`, ORed over the passes).
+def _xy_major(x: jax.Array) -> jax.Array:
+  """The inverse of `_xy_minor`."""
+  return jnp.moveaxis(jnp.swapaxes(x, -3, -2), -1, 0)
+
+
+# ---------------------------------------------------------------- kernels on batches
+
+def _step_kernel(config: Config, world: World, accel: jax.Array | None) -> World:
+  state, bodies = core.from_world(world)
+  accel = None if accel is None else _xy_minor(accel)
+  return core.to_world(world, core.step.step(state, bodies, config, accel))
+
+
+def _resolve_kernel(config: Config, world: World) -> World:
+  state, bodies = core.from_world(world)
+  return core.to_world(world, core.step.resolve(state, bodies, config))
+
+
+def _rollout_kernel(config: Config, n_steps: int, policy, record: tuple[str, ...],
+                    world: World, controls: jax.Array | None) -> tuple[World, Trajectory]:
+  state, bodies = core.from_world(world)
+  controls = None if controls is None else _xy_minor(controls)  # [T, 2, n, B]
+  policy_minor = None
+  if policy is not None:
+    def policy_minor(s, t):
+      view = core.to_world(world, s)
+      accel = jax.vmap(lambda w: _policy_accel(policy, w, t))(view)
+      return _xy_minor(accel)
+
+  final, traj = core.step.rollout(state, bodies, config, n_steps, controls, policy_minor, record)
+  # [T, k, n, B] -> [B, T, n, k]; [T, n, B] -> [B, T, n]; [T, B] -> [B, T].
+  def major(name, x):
+    if name in ("pos", "vel", "touching"):
+      return jnp.moveaxis(x, (0, 1, 3), (1, 3, 0))
+    if name == "status":
+      return x.T
+    return jnp.moveaxis(x, (0, 2), (1, 0))
+
+  traj = Trajectory(**{name: major(name, x) for name, x in traj.items()})
+  return core.to_world(world, final), traj
+
+
+def _policy_accel(policy, world: World, t: jax.Array) -> jax.Array:
+  accel = policy(world, t)
+  if getattr(accel, "shape", None) != world.pos.shape:
+    raise ValueError(f"rollout: policy(world, t) must return accelerations of shape "
+                     f"{world.pos.shape}, got {getattr(accel, 'shape', type(accel).__name__)}")
+  return jnp.asarray(accel, world.pos.dtype)
+
+
+# -------------------------------------------------------- one world, and the vmap route
+
+def _add_axis(tree):
+  return jax.tree.map(lambda x: x[None], tree)
+
+
+def _drop_axis(tree):
+  return jax.tree.map(lambda x: x[0], tree)
+
+
+def _broadcast(axis_size: int, in_batched, args):
+  return jax.tree.map(lambda b, x: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape),
+                      in_batched, args)
+
+
+def _all_batched(tree):
+  return jax.tree.map(lambda _: True, tree)
+
+
+def batch_route(kernel: Callable) -> Callable:
+  """`kernel(*batched_args) -> batched outputs` (every array with a leading batch axis)
+  made into a function of one world whose `jax.vmap` calls `kernel` on the whole batch.
+
+  * One world: the kernel at `B = 1`.
+  * Under `vmap`: a `custom_vmap` rule calls the kernel on the batch (leaves the vmap
+    does not batch are broadcast); under nested `vmap`s the outer axes fold into one
+    batch (`[A, B, ...]` -> `[A * B, ...]`).
+  * Under `jax.jvp` / `jax.grad` (a `custom_jvp`): the tangents of the plain kernel at
+    one world, which reverse mode transposes (`custom_vmap` alone does not support it).
+    Differentiating a vmapped call batches that tangent rule as JAX batches any code.
+  * Sharded batches: the kernel runs in `sharding.in_auto_axes` (its gathers then stay
+    within each device's block of worlds: `core.layout.lanes_split`).
   """
-  mass = chain.body_mass(world.inv_mass, world.active)
-  movable = world.movable
-  one_way = None
-  if config.one_way:
-    fixed = world.active & (world.inv_mass == 0)
-    one_way = geometry.OneWay(one_way=world.active & world.one_way, solid=fixed & ~world.one_way)
-  # Seams: the faces of immovable bodies make surfaces (one-way bodies excepted; sensors
-  # are out of every candidate table already).
-  surface = None
-  if config.immovable and start is not None:
-    surface = world.active & (world.inv_mass == 0)
-    surface = surface & ~world.one_way if config.one_way else surface
-  table = broadphase.build(pos, world, config, start) if table is None else table
+  def run(args):
+    return in_auto_axes(lambda *a: kernel(*a), *args, batched=True)
 
-  def one_pass(_, carry):
-    p, v, code, _, crushed, touching = carry
-    cand, found = broadphase.candidates(p, world, config, table)
-    cand = flags.admit(cand, world, layers=config.layers, sensors=config.sensors)
-    ow = one_way if one_way is None or v is None else dataclasses.replace(one_way, vel=v)
-    front, overflow = geometry.links(p, world.half, cand, skin=config.skin, limit=config.links,
-                                     rows=movable, start=start, one_way=ow,
-                                     surface=surface)
-    out = chain.displacement(front, mass, ~movable, depth=config.depth,
-                             track_immovable=config.immovable, vel=v, stick=velocity.STICK,
-                             converge=config.converge)
-    scaled, exhausted = out.scaled, out.exhausted
-    if v is not None:
-      v = v + out.dvel
-      if config.immovable:
-        v = velocity.crush(v, front, out.jammed, movable)
-    if v is not None and config.has_friction:
-      v, rubbed, cut = velocity.friction(v, front, out.impulse, world.friction, out.shared,
-                                         out.sticking, mass, depth=config.depth,
-                                         converge=config.converge, short=out.short)
-      scaled, exhausted = scaled | rubbed, exhausted | cut
-    code = code | found | _pass_flags(overflow, scaled)
-    touching = touching | flags.touching(front)
-    return p + out.disp, v, code, exhausted, crushed | out.crushed, touching
+  @custom_vmap
+  def batched(args):
+    return run(args)
 
-  zero = jnp.zeros((), jnp.int32)
-  n = world.num_bodies
-  init = (pos, vel, zero, jnp.zeros((), bool), jnp.zeros((n,), bool),
-          jnp.zeros((geometry.NUM_DIRECTIONS, n), bool))
-  p, v, code, exhausted, crushed, touching = lax.fori_loop(0, config.iterations, one_pass, init)
-  # Only the last pass counts: earlier passes may leave work that later ones finish.
-  code = code | jnp.where(exhausted, status.DEPTH_EXHAUSTED, 0)
-  return p, v, code, crushed, touching
+  @batched.def_vmap
+  def fold(axis_size, in_batched, args):
+    args = _broadcast(axis_size, in_batched[0], args)
+    flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), args)
+    out = jax.tree.map(lambda x: x.reshape((axis_size, -1) + x.shape[1:]), batched(flat))
+    return out, _all_batched(out)
+
+  @custom_vmap
+  def single(args):
+    return _drop_axis(kernel(*_add_axis(args)))
+
+  @single.def_vmap
+  def rule(axis_size, in_batched, args):
+    out = batched(_broadcast(axis_size, in_batched[0], args))
+    return out, _all_batched(out)
+
+  @jax.custom_jvp
+  def one(args):
+    return single(args)
+
+  @one.defjvp
+  def one_jvp(primals, tangents):
+    return jax.jvp(lambda a: _drop_axis(kernel(*_add_axis(a))), primals, tangents)
+
+  return lambda *args: one(args)
 
 
-def _sensed(world: World, pos: jax.Array, config: Config,
-            table: broadphase.Neighbors | None = None, *,
-            start: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
-  """`World.sensed` at `pos`, or with `start` swept over the straight motion from
-  `start` to `pos` (a substep: `flags.sensed`); all False without `config.sensors`.
-  Also the status bits of the candidate table it reads (built again at `pos`: the
-  bodies have moved; or a substep's neighbour `table`, checked against its margin)."""
-  if not config.sensors:
-    return jnp.zeros_like(world.sensed), jnp.zeros((), jnp.int32)
-  cand, found = broadphase.candidates(pos, world, config, table)
-  return flags.sensed(world, pos, cand, start), found
+@functools.lru_cache(maxsize=None)
+def _single_step(config: Config) -> Callable:
+  return batch_route(functools.partial(_step_kernel, config))
 
 
-def _pass_flags(overflow: jax.Array, scaled: jax.Array) -> jax.Array:
-  """The status bits one pass raises: `LINK_OVERFLOW`, `IMPULSES_SCALED`."""
-  return (jnp.where(overflow, status.LINK_OVERFLOW, 0)
-          | jnp.where(scaled, status.IMPULSES_SCALED, 0))
+@functools.lru_cache(maxsize=None)
+def _single_resolve(config: Config) -> Callable:
+  return batch_route(functools.partial(_resolve_kernel, config))
 
 
-def _finite_code(world: World, *arrays: jax.Array) -> jax.Array:
-  """`NON_FINITE` if a state array (`[n, 2]`) of an active body is NaN or inf, or if a
-  parameter is out of its domain: half-extents not finite and `> 0`, inverse masses
-  or friction not finite and `>= 0`, gravity not finite (values that traced code, or
-  `dataclasses.replace`, can put in a World without `World.replace`'s checks)."""
-  active = world.active
-  bad = jnp.any(~jnp.isfinite(world.gravity))
-  bad = bad | jnp.any(active[:, None] & ~(jnp.isfinite(world.half) & (world.half > 0)))
-  for p in (world.inv_mass, world.friction):
-    bad = bad | jnp.any(active & ~(jnp.isfinite(p) & (p >= 0)))
-  for x in arrays:
-    bad = bad | jnp.any(active[:, None] & ~jnp.isfinite(x))
-  return jnp.where(bad, status.NON_FINITE, 0)
+@functools.lru_cache(maxsize=None)
+def _single_rollout(config: Config, n_steps: int, record: tuple[str, ...]) -> Callable:
+  return batch_route(functools.partial(_rollout_kernel, config, n_steps, None, record))
 
+
+def _batched(kernel: Callable, *args):
+  return in_auto_axes(kernel, *args, batched=True)
+
+
+# -------------------------------------------------------------------- public functions
 
 @functools.partial(jax.jit, static_argnames="config")
 def resolve(world: World, config: Config) -> World:
   """Collision resolution only: moves bodies out of each other, velocities untouched.
 
   Args:
-    world: a single world (use `jax.vmap` for a batch).
+    world: a world, or a batch of worlds (`[B, n, ...]`, e.g. from `jc.stack`); a
+      `jax.vmap` over single worlds runs as one batch too.
     config: static configuration (`depth`, `iterations`, `skin`, `immovable`).
 
   Returns:
@@ -178,113 +227,18 @@ def resolve(world: World, config: Config) -> World:
     >>> [round(float(x), 4) for x in jc.resolve(w, jc.Config()).pos[:, 0]]
     [-0.1, 0.9, 1.9]
   """
-  _check_single(world, "resolve")
-  return in_auto_axes(lambda w: _resolve(w, config), world)
-
-
-def _resolve(world: World, config: Config) -> World:
-  pos, _, code, crushed, touching = _passes(world, world.pos, config)
-  sensed, found = _sensed(world, pos, config)
-  code = code | found | _finite_code(world, world.pos, pos) | _crushed_code(crushed)
-  code = code | _switched_off(world, config, physics=False)
-  return dataclasses.replace(world, pos=pos, crushed=crushed, touching=touching.T, sensed=sensed,
-                             status=world.status | code)
-
-
-def _crushed_code(crushed: jax.Array) -> jax.Array:
-  return jnp.where(jnp.any(crushed), status.CRUSHED, 0)
-
-
-def _switched_off(world: World, config: Config, physics: bool = True) -> jax.Array:
-  """`SWITCHED_OFF` and the bit naming each feature when the world uses what the config
-  leaves out of the step (`FRICTION_OFF`, ..., `LAYERS_OFF`; `resolve`, with
-  `physics=False`, uses neither friction nor gravity)."""
-  used = []
-  if physics and not config.has_friction:
-    used.append((status.FRICTION_OFF, jnp.any(world.active & (world.friction > 0))))
-  if physics and not config.has_gravity:
-    used.append((status.GRAVITY_OFF, jnp.any(world.gravity != 0) & jnp.any(world.movable)))
-  if not config.immovable:
-    used.append((status.IMMOVABLE_OFF, jnp.any(world.active & (world.inv_mass == 0))))
-  if not config.one_way:
-    used.append((status.ONE_WAY_OFF, jnp.any(world.active & world.one_way)))
-  if not config.sensors:
-    used.append((status.SENSORS_OFF, jnp.any(world.active & world.sensor)))
-  if not config.layers:  # As `sizing.uses_layers`: some mask misses a present layer.
-    category = jnp.where(world.active, world.category, jnp.zeros_like(world.category))
-    present = jnp.bitwise_or.reduce(category)
-    used.append((status.LAYERS_OFF, jnp.any(
-        world.active & ((category == 0) | ((world.mask & present) != present)))))
-  code = jnp.zeros((), jnp.int32)
-  for bit, on in used:
-    code = code | jnp.where(on, bit | status.SWITCHED_OFF, 0)
-  return code
-
-
-def _substep(world: World, config: Config, sub_dt: float, accel: jax.Array | None) -> World:
-  """Integrate (semi-implicit Euler), then resolution passes that move the bodies
-  apart and update their velocities from the contact impulses and friction."""
-  vel = world.vel
-  if accel is not None:
-    vel = vel + jnp.where(world.active[:, None], accel * sub_dt, 0.0)
-  if config.has_gravity:
-    vel = vel + jnp.where(world.movable[:, None], world.gravity[None] * sub_dt, 0.0)
-  code = jnp.where(_too_fast(world, vel, sub_dt), status.FAST_BODY, 0)
-  motion = jnp.where(world.active[:, None], vel * sub_dt, 0.0)
-  code = code | jnp.where(_motion_lost(world.pos, vel, motion), status.PRECISION_LOST, 0)
-  predicted = world.pos + motion
-  table = broadphase.build(predicted, world, config, world.pos)  # None without neighbors.
-  pos, vel, found, crushed, touching = _passes(world, predicted, config, start=world.pos, vel=vel,
-                                               table=table)
-  # Sensors see every overlap during the step: swept over this substep's motion (from
-  # a candidate table at its end positions, or the substep's neighbour table: it holds
-  # the swept boxes), ORed over the substeps.
-  sensed, seen = _sensed(world, pos, config, table, start=world.pos)
-  code = code | found | seen | _finite_code(world, pos, vel) | _crushed_code(crushed)
-  return dataclasses.replace(world, pos=pos, vel=vel, crushed=world.crushed | crushed,
-                             touching=world.touching | touching.T, sensed=world.sensed | sensed,
-                             status=world.status | code)
-
-
-def _motion_lost(pos: jax.Array, vel: jax.Array, motion: jax.Array) -> jax.Array:
-  """Whether a body moving faster than `velocity.STICK` (below it the library already
-  treats bodies as at rest relative to each other) moves, in this substep, less than
-  the float spacing of its coordinate: its motion rounds away (float32 at x = 1e5
-  steps by 0.0078, so 0.1 units/s goes nowhere at 60 steps a second)."""
-  pos, vel, motion = (lax.stop_gradient(x) for x in (pos, vel, motion))  # A report only.
-  lost = (jnp.abs(vel) > velocity.STICK) & (jnp.abs(motion) < jnp.spacing(jnp.abs(pos)))
-  return jnp.any(lost)
-
-
-def _too_fast(world: World, vel: jax.Array, sub_dt: float) -> jax.Array:
-  """Whether some body moves, in one substep, at least its own half-extent plus the
-  smallest half-extent of any body along an axis: past that its centre can cross a
-  thin body's centre, and the contact would push it out on the far side."""
-  thinnest = jnp.min(jnp.where(world.active[:, None], world.half, jnp.inf), axis=0, initial=jnp.inf)
-  reach = world.half + thinnest[None]
-  return jnp.any(world.active[:, None] & (jnp.abs(vel) * sub_dt >= reach))
+  if _check_world(world, "resolve"):
+    return _batched(functools.partial(_resolve_kernel, config), world)
+  return _single_resolve(config)(world)
 
 
 def _step(world: World, config: Config, accel: jax.Array | None) -> World:
-  """One step of one world, in `in_auto_axes` (a batch sharded over an explicit mesh
-  axis then runs as under an Auto one: see `jaxchain.sharding`)."""
-  return in_auto_axes(lambda w, a: _step_body(w, config, a), world, accel)
-
-
-def _step_body(world: World, config: Config, accel: jax.Array | None) -> World:
-  sub_dt = config.dt / config.substeps
-  # Library code uses dataclasses.replace: World.replace validates concrete values, and
-  # under jax.disable_jit a NaN must become NON_FINITE, not an exception.
-  world = dataclasses.replace(world, crushed=jnp.zeros_like(world.crushed),  # ORed over substeps.
-                              touching=jnp.zeros_like(world.touching),
-                              sensed=jnp.zeros_like(world.sensed),
-                              status=world.status | _switched_off(world, config))
-  if config.substeps == 1:
-    world = _substep(world, config, sub_dt, accel)
-  else:
-    world = lax.fori_loop(0, config.substeps, lambda _, w: _substep(w, config, sub_dt, accel),
-                          world)
-  return world
+  if _check_world(world, "step"):
+    if accel is not None and accel.shape != world.pos.shape:
+      raise ValueError(f"step: accel must have the shape of pos {world.pos.shape}, got "
+                       f"{accel.shape}")
+    return _batched(functools.partial(_step_kernel, config), world, accel)
+  return _single_step(config)(world, accel)
 
 
 @functools.partial(jax.jit, static_argnames="config")
@@ -293,11 +247,12 @@ def step(world: World, config: Config, accel: jax.Array | None = None) -> World:
   velocity update, friction; `config.substeps` times with `dt / substeps`.
 
   Args:
-    world: a single world (use `jax.vmap` for a batch).
+    world: a world, or a batch of worlds (`[B, n, ...]`, e.g. from `jc.stack`); a
+      `jax.vmap` over single worlds runs as one batch too.
     config: static configuration.
-    accel: optional `[n, 2]` external acceleration for this step (a player's
-      input, say); applied to every active body, immovable ones included (that is
-      how a kinematic platform is driven).
+    accel: optional `[n, 2]` (`[B, n, 2]` for a batch) external acceleration for this
+      step (a player's input, say); applied to every active body, immovable ones
+      included (that is how a kinematic platform is driven).
 
   Returns:
     The world after `config.dt`.
@@ -309,12 +264,12 @@ def step(world: World, config: Config, accel: jax.Array | None = None) -> World:
     >>> float(w.pos[0, 1]), float(w.vel[0, 1])  # rests on the floor, stopped by it
     (0.5, 0.0)
   """
-  _check_single(world, "step")
   return _step(world, config, accel)
 
 
 def make_step(config: Config):
-  """Returns `step_fn(world, accel=None) -> world`, jitted once for `config`.
+  """Returns `step_fn(world, accel=None) -> world`, jitted once for `config` (a world
+  or a batch of worlds, as `step` takes them).
 
   Examples:
     >>> import jaxchain as jc
@@ -324,7 +279,6 @@ def make_step(config: Config):
     -0.1635
   """
   def step_fn(world: World, accel: jax.Array | None = None) -> World:
-    _check_single(world, "step_fn", batch_hint="jax.vmap(step_fn), with step_fn = jc.make_step(cfg)")
     return _step(world, config, accel)
 
   return jax.jit(step_fn)
@@ -336,24 +290,28 @@ def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | No
   """`n_steps` steps under `lax.scan`, open-loop (`controls`) or closed-loop (`policy`).
 
   Args:
-    world: a single world (use `jax.vmap` for a batch).
+    world: a world, or a batch of worlds (`[B, n, ...]`, e.g. from `jc.stack`); a
+      `jax.vmap` over single worlds runs as one batch too (a rollout with a `policy`
+      under `vmap` runs per world: pass the batch itself to run it as one).
     config: static configuration.
     n_steps: number of steps (static).
     controls: optional accelerations, `[n_steps, n, 2]` (one per step) or
-      `[n, 2]` (the same every step).
+      `[n, 2]` (the same every step); for a batch `[B, n_steps, n, 2]` or `[B, n, 2]`.
     policy: optional `policy(world, t) -> accel` (`[n, 2]`), called before each step
       with the world as it is and the step index `t` (int32 scalar, from 0): a
-      closed loop. Jittable, vmappable and differentiable like the rest; it is a
-      static argument (hashed by identity), so define it once rather than as a new
-      `lambda` per call (each new function compiles again). To differentiate with
-      respect to a policy's parameters, close over them inside the function you
-      differentiate (see docs/toolkit.md, "Closed-loop rollouts").
+      closed loop; for a batch it is called on each world (`jax.vmap`). Jittable,
+      vmappable and differentiable like the rest; it is a static argument (hashed by
+      identity), so define it once rather than as a new `lambda` per call (each new
+      function compiles again). To differentiate with respect to a policy's
+      parameters, close over them inside the function you differentiate (see
+      docs/toolkit.md, "Closed-loop rollouts").
     record: which extra per-step outputs the trajectory keeps, of
       `("status", "touching", "crushed", "sensed")` (static; default none, to keep
       memory small).
 
   Returns:
-    `(final_world, trajectory)` with `trajectory.pos` of shape `[n_steps, n, 2]`.
+    `(final_world, trajectory)` with `trajectory.pos` of shape `[n_steps, n, 2]`
+    (`[B, n_steps, n, 2]` for a batch, as `jax.vmap` would give).
 
   Raises:
     ValueError: for controls of the wrong shape, both `controls` and `policy`, a
@@ -370,7 +328,7 @@ def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | No
     >>> round(float(final.vel[0, 0]), 4), traj.touching.shape
     (3.0, (60, 2, 4))
   """
-  _check_single(world, "rollout")
+  batch = _check_world(world, "rollout")
   record = (record,) if isinstance(record, str) else tuple(record)  # Hashable: static.
   unknown = [r for r in record if r not in RECORDABLE]
   if unknown:
@@ -378,12 +336,15 @@ def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | No
   if controls is not None and policy is not None:
     raise ValueError("rollout: pass controls= (open loop) or policy= (closed loop), not both; "
                      "add the controls inside the policy: policy(world, t) + controls[t]")
-  if controls is not None and controls.ndim == 2:
-    controls = jnp.broadcast_to(controls, (n_steps,) + controls.shape)
-  if controls is not None and controls.shape != (n_steps,) + world.pos.shape:
-    raise ValueError(f"rollout: controls must have shape {(n_steps,) + world.pos.shape} "
-                     f"or {world.pos.shape}, got {controls.shape}")
-
+  if controls is not None:
+    controls = jnp.asarray(controls)
+    one = world.pos.shape[-2:]
+    lead = world.pos.shape[:1] if batch else ()
+    if controls.shape == lead + one:
+      controls = jnp.broadcast_to(controls[..., None, :, :], lead + (n_steps,) + one)
+    if controls.shape != lead + (n_steps,) + one:
+      raise ValueError(f"rollout: controls must have shape {lead + (n_steps,) + one} "
+                       f"or {lead + one}, got {controls.shape}")
   return _rollout(world, config, n_steps, controls, policy, record)
 
 
@@ -392,20 +353,9 @@ def _rollout(world: World, config: Config, n_steps: int, controls: jax.Array | N
              policy: Callable[[World, jax.Array], jax.Array] | None,
              record: tuple[str, ...]) -> tuple[World, Trajectory]:
   """`rollout` after its checks, jitted (config, n_steps, policy and record static)."""
-  def accel_of(w, t, given):
-    if policy is None:
-      return given
-    accel = policy(w, t)
-    if getattr(accel, "shape", None) != w.pos.shape:
-      raise ValueError(f"rollout: policy(world, t) must return accelerations of shape "
-                       f"{w.pos.shape}, got {getattr(accel, 'shape', type(accel).__name__)}")
-    return jnp.asarray(accel, w.pos.dtype)
-
-  def body(w, xs):
-    t, given = xs
-    w = _step(w, config, accel_of(w, t, given))
-    extra = {name: getattr(w, name) for name in record}
-    return w, Trajectory(pos=w.pos, vel=w.vel, **extra)
-
-  steps = jnp.arange(n_steps, dtype=jnp.int32)
-  return lax.scan(body, world, (steps, controls), length=n_steps)
+  kernel = functools.partial(_rollout_kernel, config, n_steps, policy, record)
+  if world.pos.ndim == 3:
+    return _batched(kernel, world, controls)
+  if policy is not None:  # A policy is user code closing over anything: no custom rule.
+    return _drop_axis(kernel(_add_axis(world), None))
+  return _single_rollout(config, n_steps, record)(world, controls)

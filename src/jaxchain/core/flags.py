@@ -1,0 +1,137 @@
+"""What a step reports, batch minor: sensors, and the status bits of the state.
+
+Everything here reads what a pass or substep already built. Status bits are `[B]`
+int32, one word per world, so one bad world never takes down the batch.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxchain import status
+from jaxchain.core.layout import Bodies, any_world, scatter_max
+from jaxchain.core.pairs import Candidates
+
+# Below this speed (units/s) bodies count as at rest relative to each other
+# (`friction.STICK`); `motion_lost` reads it.
+STICK = 1e-3
+
+
+def bit(on: jax.Array, code: int) -> jax.Array:
+  """`[B]` int32: `code` where `on`, else 0."""
+  return jnp.where(on, int(code), 0).astype(jnp.int32)
+
+
+def sensed(bodies: Bodies, pos: jax.Array, cand: Candidates,
+           start: jax.Array | None = None) -> jax.Array:
+  """`[n, B]` bool: sensor j overlaps (strictly) a movable body that is not a sensor and
+  that j's mask admits (`category[i] & mask[j] != 0`).
+
+  Without `start`, the overlap at `pos`. With `start` (`[2, n, B]`, where a substep
+  started) the overlap at any moment of the substep, both bodies moving in a straight
+  line from `start` to `pos` (`swept_overlap`): a bullet crossing a thin trip wire within
+  one substep is seen. Read from the rows of the movable bodies of `cand` and scattered
+  to the sensors they overlap.
+  """
+  n, B = bodies.shape
+  g, col = cand.gather, (lambda x: x[None])
+  reach = [col(bodies.half[k]) + g(bodies.half[k]) for k in (0, 1)]
+  end = [g(pos[k]) - col(pos[k]) for k in (0, 1)]
+  if start is None:
+    hit = (jnp.abs(end[0]) < reach[0]) & (jnp.abs(end[1]) < reach[1])
+  else:
+    begin = [g(start[k]) - col(start[k]) for k in (0, 1)]
+    hit = swept_overlap(begin, end, reach)
+  zero = jnp.zeros((), bodies.category.dtype)
+  seen = col(bodies.movable & ~bodies.sensor) & g(bodies.sensor & bodies.active)
+  seen = seen & cand.mask & hit & ((col(bodies.category) & g(bodies.mask)) != zero)
+  if cand.idx is None:  # Dense: slot k holds body k.
+    return jnp.any(seen, axis=1)
+  return scatter_max(n, cand.flat, seen.astype(jnp.int32)) > 0
+
+
+def swept_overlap(begin: list[jax.Array], end: list[jax.Array],
+                  reach: list[jax.Array]) -> jax.Array:
+  """Whether two boxes overlap strictly at some fraction `t` in `[0, 1]` of a straight
+  relative motion: per axis the offset `d(t) = begin + t (end - begin)` must satisfy
+  `|d(t)| < reach` (an open interval of t per axis); the boxes overlap when those
+  intervals and `[0, 1]` meet. A motion of 0 along an axis keeps that axis's overlap
+  for the whole substep. Division-free where the motion is 0 (double `where`).
+  """
+  lo, hi = jnp.zeros_like(begin[0]), jnp.ones_like(begin[0])
+  open_lo, open_hi = jnp.zeros(begin[0].shape, bool), jnp.zeros(begin[0].shape, bool)
+  ok = jnp.ones(begin[0].shape, bool)
+  for b, e, r in zip(begin, end, reach):
+    d = e - b
+    still = d == 0
+    safe = jnp.where(still, 1.0, d)
+    t0, t1 = (-r - b) / safe, (r - b) / safe
+    enter, leave = jnp.minimum(t0, t1), jnp.maximum(t0, t1)
+    ok = ok & jnp.where(still, jnp.abs(b) < r, True)
+    later = ~still & (enter >= lo)
+    lo, open_lo = jnp.where(later, enter, lo), jnp.where(later, True, open_lo)
+    sooner = ~still & (leave <= hi)
+    hi, open_hi = jnp.where(sooner, leave, hi), jnp.where(sooner, True, open_hi)
+  return ok & jnp.where(open_lo | open_hi, lo < hi, lo <= hi)
+
+
+def finite(bodies: Bodies, *arrays: jax.Array) -> jax.Array:
+  """`[B]` `NON_FINITE` where a state array (`[2, n, B]`) of an active body is NaN or inf,
+  or a parameter is out of its domain (half-extents not finite and `> 0`, inverse masses
+  or friction not finite and `>= 0`, gravity not finite): values traced code can put in
+  a World without `World.replace`'s checks."""
+  active = bodies.active
+  bad = jnp.any(~jnp.isfinite(bodies.gravity), axis=0)
+  bad = bad | any_world(active[None] & ~(jnp.isfinite(bodies.half) & (bodies.half > 0)))
+  for p in (bodies.inv_mass, bodies.friction):
+    bad = bad | any_world(active & ~(jnp.isfinite(p) & (p >= 0)))
+  for x in arrays:
+    bad = bad | any_world(active[None] & ~jnp.isfinite(x))
+  return bit(bad, status.NON_FINITE)
+
+
+def switched_off(bodies: Bodies, config, physics: bool = True) -> jax.Array:
+  """`[B]`: `SWITCHED_OFF` and the bit naming each feature a world uses that the config
+  leaves out of the step (`resolve`, with `physics=False`, uses neither friction nor
+  gravity)."""
+  active = bodies.active
+  used = []
+  if physics and not config.has_friction:
+    used.append((status.FRICTION_OFF, any_world(active & (bodies.friction > 0))))
+  if physics and not config.has_gravity:
+    used.append((status.GRAVITY_OFF, jnp.any(bodies.gravity != 0, axis=0)
+                 & any_world(bodies.movable)))
+  if not config.immovable:
+    used.append((status.IMMOVABLE_OFF, any_world(bodies.fixed)))
+  if not config.one_way:
+    used.append((status.ONE_WAY_OFF, any_world(active & bodies.one_way)))
+  if not config.sensors:
+    used.append((status.SENSORS_OFF, any_world(active & bodies.sensor)))
+  if not config.layers:  # As `sizing.uses_layers`: some mask misses a present layer.
+    category = jnp.where(active, bodies.category, jnp.zeros_like(bodies.category))
+    present = jnp.bitwise_or.reduce(category, axis=0)
+    used.append((status.LAYERS_OFF, any_world(
+        active & ((category == 0) | ((bodies.mask & present[None]) != present[None])))))
+  code = jnp.zeros(bodies.shape[-1:], jnp.int32)
+  for b, on in used:
+    code = code | bit(on, b | status.SWITCHED_OFF)
+  return code
+
+
+def too_fast(bodies: Bodies, vel: jax.Array, sub_dt: float) -> jax.Array:
+  """`[B]` `FAST_BODY`: some body moves, in one substep, at least its own half-extent
+  plus the thinnest body's along an axis (its centre could cross a thin body's)."""
+  active = bodies.active[None]
+  thinnest = jnp.min(jnp.where(active, bodies.half, jnp.inf), axis=1, initial=jnp.inf)
+  reach = bodies.half + thinnest[:, None, :]
+  return bit(any_world(active & (jnp.abs(vel) * sub_dt >= reach)), status.FAST_BODY)
+
+
+def motion_lost(pos: jax.Array, vel: jax.Array, motion: jax.Array) -> jax.Array:
+  """`[B]` `PRECISION_LOST`: a body faster than `STICK` moves, in this substep, less than
+  the float spacing of its coordinate (its motion rounds away). A report only."""
+  pos, vel, motion = (lax.stop_gradient(x) for x in (pos, vel, motion))
+  lost = (jnp.abs(vel) > STICK) & (jnp.abs(motion) < jnp.spacing(jnp.abs(pos)))
+  return bit(any_world(lost), status.PRECISION_LOST)

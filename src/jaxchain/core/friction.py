@@ -1,0 +1,128 @@
+"""Friction, batch minor: Coulomb impulses per link, acting on units, with mass splitting.
+
+The normal impulses come from the chain resolver (`chain.displacement` with
+velocities). Friction adds, per link, the impulse that stops its two units' relative
+sliding, each unit counted with mass `S / k` (k: the body's active friction links;
+Tonge et al. 2012), clipped to `mu_pair * normal`, equal and opposite on the two
+bodies. So friction never reverses a relative tangential velocity, conserves momentum,
+and (with the energy guard) never adds kinetic energy beyond what a moving platform
+gives through its links.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxchain.core import chain
+from jaxchain.core.contacts import Links
+from jaxchain.core.layout import any_world, opposite, safe_divide, safe_sqrt
+
+# Linked bodies whose tangential velocities differ by at most this (units per second)
+# move together for friction: they are one unit, and friction on the bottom one stops
+# them all.
+STICK = 1e-3
+# A link takes part in friction (and counts for mass splitting) only while its bodies
+# slide past each other faster than this: float rounding of a sideways velocity
+# neither makes friction act nor splits a body's mass among its neighbours.
+SLIP = 1e-6
+
+
+def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array,
+             shared: jax.Array, sticking: jax.Array, mass: jax.Array, *, depth: int,
+             converge: bool = False, short: jax.Array | None = None):
+  """Coulomb friction impulses per link, acting on units, with mass splitting.
+
+  Link `(d, i, j)` rubs along the other axis. What moves with i there is i's unit on its
+  far side (`shared[e, i]`: the boxes stacked on a box that slides on a floor), and
+  what moves with j is j's unit `shared[d, j]`, both made of the links that stick. The
+  impulse stops the two units' relative sliding, clipped to the link's budget
+  `mu_pair * normal` (`mu_pair = sqrt(mu_i mu_j)`, as Box2D combines them); each unit
+  takes it rigidly, its bodies reached in `depth` hops.
+
+  Friction acts per link: a unit moves as one only through links whose own Coulomb
+  budget holds the shear that moving as one needs (`holding`). The impulses are solved
+  once on the units the chain built; a sticking link that would need more shear than
+  its budget slips, and the impulses are solved again on the units without it. So a
+  frictionless box on a sliding stack keeps sliding.
+
+  Args:
+    vel: `[2, n, B]` velocities after the normal impulses.
+    f: the link table the normal impulses were computed on.
+    normal: `[L, 4, n, B]` normal impulse per link.
+    coefficient: `[n, B]` friction coefficient per body.
+    shared: `[4, n, B]` friction units (`chain.Pass.shared`).
+    sticking: `[L, 4, n, B]` bool, the links those units are made of.
+    mass: `[n, B]` masses of movable bodies, 0 for the others.
+    depth: hops a unit's motion travels (static).
+    short: optional `[4, n, B]` bool, where the resolver's hops did not reach a chain's
+      end (`chain.Pass.short`): the friction units are cut short there too.
+
+  Returns:
+    `(vel, scaled, exhausted)`: `[2, n, B]` velocities, and `[B]` bools: the energy
+    guard scaled the update down; a link that rubs belongs to a unit the hops did not
+    reach the end of (`DEPTH_EXHAUSTED`).
+  """
+  dtype = vel.dtype
+  tangent = jnp.stack([vel[1], vel[1], vel[0], vel[0]])  # [4, n, B]
+  sliding = jnp.where(f.mask, tangent[None] - f.front(tangent), 0.0)
+  mu_pair = safe_sqrt(coefficient[None, None] * f.bodies(coefficient))
+  budget = jnp.where(f.mask, mu_pair * normal, 0.0)
+  rubbing = (budget > 0) & (jnp.abs(sliding) > SLIP)
+  movable = jnp.any(shared > 0, axis=0)[None]
+  k = jnp.broadcast_to(jnp.sum(rubbing, axis=(0, 1)).astype(dtype), tangent.shape)
+
+  def solve(shared, sticking):
+    """Impulses on the units `shared`. Returns `(impulse, total, count)`: `total` is each
+    body's tangential velocity change as part of its unit along each direction, `count`
+    its sticking pushers along it."""
+    unit_i = opposite(shared)  # At (d, i): i's unit along e.
+    inv_i = safe_divide(k, unit_i)
+    inv_j = f.front(safe_divide(k, shared))
+    stop = jnp.clip(safe_divide(sliding, inv_i[None] + inv_j), -budget, budget)
+    impulse = jnp.where(rubbing, stop, 0.0)
+    source = opposite(safe_divide(-jnp.sum(impulse, axis=0), unit_i))  # At (e, i).
+    carries = opposite(sticking, 1)  # Rows of the reversed table, sticking.
+    count = jnp.sum(carries, axis=0).astype(dtype)
+
+    def hop(total):  # A unit moves rigidly: each body takes the mean of its pushers'.
+      behind = jnp.sum(jnp.where(carries, f.back(total), 0.0), axis=0)
+      return jnp.where(movable, source + safe_divide(behind, count), 0.0)
+
+    total = chain.repeat(hop, jnp.where(movable, source, 0.0), depth, converge)
+    return impulse, total, count
+
+  impulse, total, count = solve(shared, sticking)
+  sticking = sticking & (jnp.abs(holding(f, total, shared, count)) <= budget)
+  impulse, total, _ = solve(units(f, mass, sticking, depth, converge), sticking)
+  # Units along x (e = 0, 1) slide along y, units along y along x.
+  change = jnp.stack([total[2] + total[3], total[0] + total[1]])
+  scale = chain.energy_scale(vel, change, impulse, f, mass, mass == 0, tangent)
+  exhausted = jnp.zeros(scale.shape, bool)
+  if short is not None:
+    exhausted = any_world(rubbing & (opposite(short)[None] | f.front(short)))
+  return vel + scale[None, None] * change, lax.stop_gradient(scale < 1), lax.stop_gradient(exhausted)
+
+
+def holding(f: Links, total: jax.Array, shared: jax.Array, count: jax.Array) -> jax.Array:
+  """`[L, 4, n, B]`: the tangential impulse each link must carry for the units to move
+  as one, signed like a friction impulse (entry `(d, i, j)`: momentum from i's side to
+  j's); equal and opposite in the rows of the link's two bodies."""
+  per_pusher = safe_divide(shared, count)
+  to_j = total[None] * f.front(per_pusher)
+  to_i = f.front(opposite(total)) * opposite(per_pusher)[None]
+  return to_j - to_i
+
+
+def units(f: Links, mass: jax.Array, sticking: jax.Array, depth: int,
+          converge: bool) -> jax.Array:
+  """`[4, n, B]` friction units made of the `sticking` links (as
+  `chain.link_impulses` builds them)."""
+  split = opposite(safe_divide(1.0, jnp.sum(sticking, axis=0).astype(mass.dtype)))
+  own = jnp.broadcast_to(mass, split.shape)
+
+  def hop(u):
+    return own + jnp.sum(jnp.where(sticking, f.front(u * split), 0.0), axis=0)
+
+  return chain.repeat(hop, own, depth, converge)

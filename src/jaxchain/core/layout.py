@@ -1,0 +1,234 @@
+"""The batch-minor layout of the core: every array is `[..., n, B]`.
+
+The last axis is the batch of worlds, so every elementwise operation runs over B
+contiguous worlds (XLA:CPU's vector lanes), and a gather for `(k, d, i)` reads B
+neighbouring worlds' values side by side. A single world is `B = 1`.
+
+* `Bodies`: what a step reads (half-extents, masses, flags, gravity), fixed over a
+  rollout; `State`: what a step changes (positions, velocities, outputs, status).
+* `from_world` / `to_world` transpose a `World` (`[n, ...]` or `[B, n, ...]`) into this
+  layout once on the way in and once on the way out; a rollout stays in it.
+* `take` is the one gather every stage is made of: a flat index into a flattened
+  table, built once per stage (`flat_index`), never per hop.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+NUM_DIRECTIONS = 4  # 0: +x, 1: -x, 2: +y, 3: -y; `d ^ 1` is the opposite.
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Bodies:
+  """The per-body parameters a step reads, batch minor.
+
+  Attributes:
+    half: `[2, n, B]` half-extents (x and y slabs).
+    inv_mass: `[n, B]` inverse masses (0: immovable).
+    active: `[n, B]` bool.
+    friction: `[n, B]` Coulomb coefficients.
+    gravity: `[2, B]` per-world gravity.
+    one_way, sensor: `[n, B]` bool.
+    category, mask: `[n, B]` uint32 collision layers.
+  """
+
+  half: jax.Array
+  inv_mass: jax.Array
+  active: jax.Array
+  friction: jax.Array
+  gravity: jax.Array
+  one_way: jax.Array
+  sensor: jax.Array
+  category: jax.Array
+  mask: jax.Array
+
+  @property
+  def movable(self) -> jax.Array:
+    """`[n, B]` bool: active bodies with finite mass."""
+    return self.active & (self.inv_mass > 0)
+
+  @property
+  def fixed(self) -> jax.Array:
+    """`[n, B]` bool: active immovable bodies."""
+    return self.active & (self.inv_mass == 0)
+
+  @property
+  def shape(self) -> tuple[int, int]:
+    """`(n, B)`."""
+    return self.inv_mass.shape
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class State:
+  """What a step changes, batch minor.
+
+  Attributes:
+    pos, vel: `[2, n, B]`.
+    status: `[B]` int32 status bits (sticky).
+    touching: `[4, n, B]` bool (`World.touching`, directions first).
+    crushed, sensed: `[n, B]` bool.
+  """
+
+  pos: jax.Array
+  vel: jax.Array
+  status: jax.Array
+  touching: jax.Array
+  crushed: jax.Array
+  sensed: jax.Array
+
+
+def _minor(x: jax.Array, batched: bool) -> jax.Array:
+  """`[B, n, k...]` (or `[n, k...]`) -> `[k..., n, B]` (`[k..., n, 1]`)."""
+  x = jnp.asarray(x)
+  if not batched:
+    x = x[None]
+  return jnp.moveaxis(x, (0, 1), (-1, -2))
+
+
+def _major(x: jax.Array, batched: bool) -> jax.Array:
+  """The inverse of `_minor`."""
+  x = jnp.moveaxis(x, (-1, -2), (0, 1))
+  return x if batched else x[0]
+
+
+def from_world(world) -> tuple[State, Bodies]:
+  """A `World` (single `[n, ...]` or batched `[B, n, ...]`) -> `(State, Bodies)`."""
+  batched = world.pos.ndim == 3
+  m = lambda x: _minor(x, batched)
+  per_world = lambda x: jnp.asarray(x) if batched else jnp.asarray(x)[None]
+  state = State(pos=m(world.pos), vel=m(world.vel), status=per_world(world.status),
+                touching=m(world.touching), crushed=m(world.crushed), sensed=m(world.sensed))
+  gravity = jnp.moveaxis(per_world(world.gravity), 0, -1)  # [2, B]
+  bodies = Bodies(half=m(world.half), inv_mass=m(world.inv_mass), active=m(world.active),
+                  friction=m(world.friction), gravity=gravity, one_way=m(world.one_way),
+                  sensor=m(world.sensor), category=m(world.category), mask=m(world.mask))
+  return state, bodies
+
+
+def to_world(world, state: State):
+  """`world` with the outputs of `state` (the layout of `world`: single or batched)."""
+  batched = world.pos.ndim == 3
+  m = lambda x: _major(x, batched)
+  status = state.status if batched else state.status[0]
+  return dataclasses.replace(world, pos=m(state.pos), vel=m(state.vel), status=status,
+                             touching=m(state.touching), crushed=m(state.crushed),
+                             sensed=m(state.sensed))
+
+
+def world_index(shape: tuple[int, ...]) -> jax.Array:
+  """`[B]` int32 `0..B-1`, the world lane of the last axis of `shape`."""
+  return jnp.arange(shape[-1], dtype=jnp.int32)
+
+
+def lanes_split() -> bool:
+  """Whether gathers index each world's lane apart (several devices) or one flat table.
+
+  On one device a gather of `x[..., j, b]` is one flat `take` at `j * B + b`: B
+  neighbouring worlds side by side. With the batch spread over devices a flat index
+  would cross devices (XLA would all-gather the table on every hop); there each gather
+  is batched over the world lane instead (`jax.vmap` over the last axis), which the
+  partitioner keeps on each device. The devices are the context mesh's, else the
+  runtime's (decided at trace time).
+  """
+  mesh = jax.sharding.get_abstract_mesh()
+  return (mesh.size if not mesh.empty else jax.device_count()) > 1
+
+
+def lane_index(rows: jax.Array) -> jax.Array:
+  """The index `take` reads for rows `rows` (`[..., B]` int32, a row of the table
+  flattened to `[R, B]`, in the lane of the last axis): `rows * B + b`, or the rows
+  themselves when the lanes are split (`lanes_split`)."""
+  if lanes_split():
+    return rows
+  lanes = world_index(rows.shape).reshape((1,) * (rows.ndim - 1) + rows.shape[-1:])
+  return rows * rows.shape[-1] + lanes
+
+
+def shift(index: jax.Array, rows: jax.Array | int) -> jax.Array:
+  """`index` (from `lane_index`) moved by `rows` rows (`rows` may have more leading
+  axes than `index`: the result has them too)."""
+  rows = jnp.asarray(rows, jnp.int32)
+  index = index.reshape((1,) * max(rows.ndim - index.ndim, 0) + index.shape)
+  return index + (rows if lanes_split() else rows * index.shape[-1])
+
+
+def take(table: jax.Array, index: jax.Array) -> jax.Array:
+  """`table[..., b]` at the rows `index` names (`lane_index`), lane by lane: `[..., B]`.
+  The indices are in range by construction (no clamping, no wrapping of negative
+  indices: each would add work to every gather)."""
+  get = lambda t, i: t.at[i].get(mode="promise_in_bounds", wrap_negative_indices=False)
+  if lanes_split():
+    rows = table.reshape(-1, table.shape[-1])
+    return jax.vmap(get, in_axes=(-1, -1), out_axes=-1)(rows, index)
+  return get(table.reshape(-1), index)
+
+
+def scatter_max(rows: int, index: jax.Array, values: jax.Array) -> jax.Array:
+  """`[rows, B]`: per lane the maximum of `values` scattered to the rows `index` names
+  (`lane_index`), 0 where nothing lands."""
+  B = index.shape[-1]
+  put = lambda size, i, v: jnp.zeros((size,), values.dtype).at[i].max(v, mode="promise_in_bounds")
+  if lanes_split():
+    return jax.vmap(lambda i, v: put(rows, i, v), in_axes=(-1, -1), out_axes=-1)(
+        index.reshape(-1, B), values.reshape(-1, B))
+  return put(rows * B, index.reshape(-1), values.reshape(-1)).reshape(rows, B)
+
+
+def opposite(x: jax.Array, axis: int = 0) -> jax.Array:
+  """`x` with its direction axis (size 4) permuted `d -> d ^ 1`, as a reshape and a
+  reversal (XLA runs it as a copy; an index gather is slower)."""
+  axis = axis % x.ndim
+  pairs = x.reshape(x.shape[:axis] + (2, 2) + x.shape[axis + 1:])
+  return jnp.flip(pairs, axis + 1).reshape(x.shape)
+
+
+def along(x: jax.Array, y: jax.Array) -> jax.Array:
+  """The components along +x, -x, +y, -y of a vector given by its slabs: `[4, ...]`."""
+  return jnp.stack([x, -x, y, -y])
+
+
+def per_axis(x: jax.Array) -> jax.Array:
+  """`[4, ...]` per direction -> `[2, ...]` per axis: `(x0 + x1, x2 + x3)`."""
+  return jnp.stack([x[0] + x[1], x[2] + x[3]])
+
+
+def safe_divide(num, den, default: float = 0.0):
+  """`num / den` where `den > 0`, else `default`, with finite gradients: the inner
+  `where` keeps the division away from 0 (a single outer `where` would still send
+  `0 * inf = nan` back through the branch it did not select)."""
+  ok = den > 0
+  return jnp.where(ok, num / jnp.where(ok, den, 1.0), default)
+
+
+def safe_sqrt(x: jax.Array) -> jax.Array:
+  """`sqrt(x)` for `x >= 0`, with a finite gradient at 0 (where it is 0)."""
+  ok = x > 0
+  return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1.0)), 0.0)
+
+
+def materialise(x: jax.Array) -> jax.Array:
+  """`x`, computed into memory once. XLA fuses cheap elementwise producers into each
+  consumer (recomputing them there) and XLA:CPU drops `optimization_barrier`; a
+  dynamic-update-slice at an offset it cannot prove is 0 it keeps, as one copy."""
+  if x.size == 0:
+    return x
+  first = x.reshape(-1)[0]
+  zero = jnp.zeros((), jnp.int32) * (first != first).astype(jnp.int32)
+  return lax.dynamic_update_slice(jnp.zeros_like(x), x, (zero,) * x.ndim)
+
+
+def any_world(x: jax.Array) -> jax.Array:
+  """`[..., B]` bool -> `[B]`: any over every axis but the last."""
+  return jnp.any(x, axis=tuple(range(x.ndim - 1)))
+
+
+def world_sum(x: jax.Array, y: jax.Array) -> jax.Array:
+  """Per-world sum of per-body terms along x and y (`[n, B]` each) -> `[B]`."""
+  return jnp.sum(lax.optimization_barrier(jnp.stack([x, y], axis=1)), axis=(0, 1))

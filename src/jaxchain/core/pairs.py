@@ -1,0 +1,231 @@
+"""Candidate pairs, batch minor: the tables every later stage reads.
+
+A `Candidates` table is `[W, n, B]`: entry `(k, i, b)` is the k-th candidate partner
+of body i in world b. Two sources list every pair that could touch (the coarse
+tables): dense all pairs (`W = n`, slot k is body k, gathers are broadcasts) and the
+uniform grid (`jaxchain.broadphase.grid`, built per world and handed on transposed
+once). With `Config.neighbors` a (sub)step filters the coarse table once into a narrow
+`Neighbors` table (`build`): each movable body's partners within the margin, which
+every pass of the substep and the sensors read, each use checking the margin
+(`NEIGHBOR_MARGIN`); a full row sets `NEIGHBOR_OVERFLOW`. Nothing is dropped silently.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxchain import broadphase as host_broadphase
+from jaxchain import status
+from jaxchain.core.layout import Bodies, any_world, lane_index, shift, take
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Candidates:
+  """Candidate partners, `[W, n, B]`.
+
+  Attributes:
+    idx: int32 partner indices, or None for dense pairs (`W = n`, slot k is body k).
+    mask: bool, which slots are real candidate pairs. A pair is listed in the rows of
+      both its bodies (movable ones), so every pairwise quantity is computed from both
+      sides and the step stays permutation-equivariant.
+    flat: the index `take` reads for the partners in an `[n, B]` table
+      (`layout.lane_index`; None for dense).
+  """
+
+  idx: jax.Array | None
+  mask: jax.Array
+  flat: jax.Array | None
+
+  @classmethod
+  def of(cls, idx: jax.Array | None, mask: jax.Array) -> Candidates:
+    flat = None if idx is None else lane_index(idx)
+    return cls(idx, mask, flat)
+
+  def gather(self, x: jax.Array) -> jax.Array:
+    """Partner values: `[..., n, B]` -> `[..., W, n, B]`."""
+    n, B = x.shape[-2:]
+    if self.idx is None:
+      return jnp.broadcast_to(x[..., :, None, :], x.shape[:-1] + (n, B))
+    lead = x.shape[:-2]
+    if not lead:
+      return take(x, self.flat)
+    rows = math.prod(lead)
+    offsets = (n * jnp.arange(rows, dtype=jnp.int32)).reshape(lead + (1, 1, 1))
+    return take(x, shift(self.flat, offsets))
+
+  def index(self) -> jax.Array:
+    """`[W, n, B]` int32 partner indices (materialised for dense)."""
+    if self.idx is None:
+      n, B = self.mask.shape[-2:]
+      return jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32)[:, None, None], (n, n, B))
+    return self.idx
+
+
+def dense(active: jax.Array) -> Candidates:
+  """All pairs of active bodies (`[n, n, B]`, the diagonal masked out). O(n^2)."""
+  n = active.shape[0]
+  eye = jnp.eye(n, dtype=bool)[:, :, None]
+  return Candidates.of(None, active[:, None, :] & active[None, :, :] & ~eye)
+
+
+def grid(pos: jax.Array, bodies: Bodies, spec: host_broadphase.GridSpec,
+         skin: float) -> tuple[Candidates, jax.Array]:
+  """The grid's candidate rows at `pos` (`[2, n, B]`): built per world by
+  `jaxchain.broadphase.grid` (a sort and a scatter per world, which the batch-minor
+  layout cannot speed up) and handed on transposed once, `[m, n, B]`, with the
+  grid's status bits `[B]`."""
+  major = lambda x: jnp.moveaxis(x, -1, 0)  # [..., n, B] -> [B, ..., n]
+  xy = lambda x: jnp.moveaxis(x, (0, 2), (2, 0))  # [2, n, B] -> [B, n, 2]
+  cand, code = jax.vmap(lambda p, h, a, m: host_broadphase.grid(p, h, a, m, spec, skin))(
+      xy(pos), xy(bodies.half), major(bodies.active), major(bodies.movable))
+  to_minor = lambda x: jnp.transpose(x, (2, 1, 0))  # [B, n, m] -> [m, n, B]
+  return Candidates.of(to_minor(cand.idx), to_minor(cand.mask)), code
+
+
+def coarse(pos: jax.Array, bodies: Bodies, config, skin: float | None = None
+           ) -> tuple[Candidates, jax.Array]:
+  """The coarse table the config asks for at `pos`: grid rows or dense pairs, with the
+  grid's status bits (`[B]`, 0 for dense)."""
+  skin = config.skin if skin is None else skin
+  n, B = bodies.shape
+  if config.uses_grid(n) and n > 0:
+    return grid(pos, bodies, config.grid, skin)
+  return dense(bodies.active), jnp.zeros((B,), jnp.int32)
+
+
+def first_set(sel: jax.Array, limit: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+  """Positions of the first `limit` set entries along axis 0 of `sel` (`[m, ...]`).
+
+  Packs axis 0 into uint32 words (distinct powers of two, summed exactly), then peels
+  the lowest set bit `limit` times in a `lax.scan` (each peel a few elementwise
+  operations per word, no sort, no `argmax`): `O(m + limit * m / 32)` per row.
+
+  Returns:
+    `(slot, valid, rest)`: `[limit, ...]` int32 positions (0 where not valid),
+    `[limit, ...]` bool, and `[...]` bool: the row had more than `limit`.
+  """
+  m = sel.shape[0]
+  num_words = -(-m // 32)
+  pad = num_words * 32 - m
+  if pad:
+    sel = jnp.concatenate([sel, jnp.zeros((pad,) + sel.shape[1:], bool)])
+  sel = sel.reshape((num_words, 32) + sel.shape[1:])
+  tail = (1,) * (sel.ndim - 2)
+  powers = (jnp.uint32(1) << jnp.arange(32, dtype=jnp.uint32)).reshape((1, 32) + tail)
+  words = jnp.sum(jnp.where(sel, powers, jnp.uint32(0)), axis=1, dtype=jnp.uint32)
+  none = jnp.int32(num_words * 32)
+  base = (32 * jnp.arange(num_words, dtype=jnp.int32)).reshape((num_words,) + tail)
+
+  def peel(x, _):
+    low = x & (~x + jnp.uint32(1))
+    at = jnp.where(x != 0, base + 31 - lax.clz(low).astype(jnp.int32), none)
+    first = jnp.min(at, axis=0)
+    x = jnp.where(at == first[None], x ^ low, x)
+    valid = first < none
+    return x, (jnp.where(valid, first, 0), valid)
+
+  words, (slot, valid) = lax.scan(peel, words, None, length=limit)
+  return slot, valid, jnp.any(words != 0, axis=0)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Neighbors:
+  """A candidate table built once per (sub)step and read by every pass (`build`).
+
+  Attributes:
+    cand: `[w, n, B]` candidates, `w = Config.neighbors`, in the coarse source's order.
+    ref: `[2, n, B]` the positions it was built at.
+    code: `[B]` int32 status bits of the build (`NEIGHBOR_OVERFLOW`, the grid's bits,
+      and `NEIGHBOR_MARGIN` for a sweep past the margin on the grid).
+  """
+
+  cand: Candidates
+  ref: jax.Array
+  code: jax.Array
+
+
+def neighbors(centre: jax.Array, half: jax.Array, rows: jax.Array, coarse: Candidates, *,
+              width: int, reach: float) -> tuple[Candidates, jax.Array]:
+  """Compacts `coarse` to the partners within `reach` of each body of `rows` (an
+  AABB gap test along both axes on boxes `centre`, `half`, `[2, n, B]`), the first
+  `width` by slot; returns the table and `NEIGHBOR_OVERFLOW` per world."""
+  n, B = rows.shape
+  near = coarse.mask & rows[None]
+  for k in (0, 1):
+    gap = jnp.abs(coarse.gather(centre[k]) - centre[k][None]) - (
+        half[k][None] + coarse.gather(half[k]))
+    near = near & (gap <= reach)
+  m = near.shape[0]
+  if width >= m:  # Nothing to compact: the coarse table, filtered.
+    return Candidates.of(coarse.index(), near), jnp.zeros((B,), jnp.int32)
+  slot, valid, rest = first_set(near, width)
+  if coarse.idx is None:
+    idx = slot
+  else:
+    body = jnp.arange(n, dtype=jnp.int32)[None, :, None]
+    idx = take(coarse.idx, lane_index(slot * n + body))
+  overflow = jnp.any(rest, axis=0)
+  return Candidates.of(idx, valid), jnp.where(overflow, status.NEIGHBOR_OVERFLOW, 0).astype(jnp.int32)
+
+
+def build(pos: jax.Array, bodies: Bodies, config, start: jax.Array | None = None
+          ) -> Neighbors | None:
+  """The neighbour table of a (sub)step at `pos`, or None without `config.neighbors`.
+
+  With `start` (the substep's start positions; `pos` is where the bodies are predicted
+  to be) each body is taken as the box it sweeps from `start` to `pos`: the table then
+  also holds every pair that meets during that motion (the swept sensor test reads
+  it), and the margin need not cover the motion itself. With the grid as the source a
+  body that sweeps more than the margin sets `NEIGHBOR_MARGIN`.
+  """
+  if config.neighbors is None:
+    return None
+  n, B = bodies.shape
+  reach = host_broadphase.neighbor_reach(config.skin, config.margin)
+  use_grid = config.uses_grid(n) and n > 0
+  grid_skin = reach + config.margin  # One margin more: the swept extension.
+  spec = config.grid
+  if use_grid and spec.cell < 2 * spec.reach + grid_skin:
+    raise ValueError(
+        f"Config.grid: a neighbour table with margin {config.margin} needs cells of at least "
+        f"2 * reach + skin + 2 * margin (+ {host_broadphase.MARGIN_SLACK:g} margin of slack) = "
+        f"{2 * spec.reach + grid_skin:.6g}, got {spec.cell:.6g}; allocate the grid with "
+        f"jaxchain.broadphase.allocate(world, skin=jaxchain.broadphase.grid_skin(skin, "
+        f"margin)) or use Config.for_world")
+  centre, half = pos, bodies.half
+  code = jnp.zeros((B,), jnp.int32)
+  if start is not None:
+    sweep = jnp.where(bodies.active[None], jnp.abs(pos - start), 0.0)
+    centre, half = 0.5 * (start + pos), half + 0.5 * sweep
+    if use_grid:
+      code = jnp.where(any_world(sweep > config.margin), status.NEIGHBOR_MARGIN, 0)
+  source, found = coarse(centre, bodies, config, skin=grid_skin)
+  cand, overflow = neighbors(centre, half, bodies.movable, source, width=config.neighbors,
+                             reach=reach)
+  return Neighbors(cand=cand, ref=pos, code=(overflow | found | code).astype(jnp.int32))
+
+
+def moved(table: Neighbors, pos: jax.Array, active: jax.Array, margin: float) -> jax.Array:
+  """`[B]` `NEIGHBOR_MARGIN` where an active body is more than `margin / 2` from where
+  `table` was built along an axis (pairs could be missing), else 0."""
+  far = active[None] & (jnp.abs(pos - table.ref) > 0.5 * margin)
+  return jnp.where(any_world(far), status.NEIGHBOR_MARGIN, 0).astype(jnp.int32)
+
+
+def candidates(pos: jax.Array, bodies: Bodies, config, table: Neighbors | None = None
+               ) -> tuple[Candidates, jax.Array]:
+  """The table a pass reads at `pos`: the substep's neighbour table (checked against
+  its margin), or without `config.neighbors` the coarse table built at `pos`.
+  Returns `(candidates, status [B])`."""
+  if config.neighbors is not None:
+    if table is None:
+      table = build(pos, bodies, config)
+    return table.cand, table.code | moved(table, pos, bodies.active, config.margin)
+  return coarse(pos, bodies, config)

@@ -1,0 +1,185 @@
+"""The step, batch minor: one call per stage, on `State` and `Bodies` (`[..., n, B]`).
+
+A pass reads, at the positions it starts from: candidates (`pairs`), contacts and links
+(`contacts`, built once and read by every later stage), resolution (`chain`: positions
+and, with velocities, the contact impulses in the same hops), crushing, friction, and
+the flags. A substep integrates (semi-implicit Euler), runs `Config.iterations` passes
+and the sensors; a step runs `Config.substeps` substeps; a rollout scans steps and
+stays in this layout throughout. Every feature a config switches off is left out by a
+Python `if` on the static config: it is not traced at all.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxchain import status
+from jaxchain.core import chain, contacts, flags, friction, pairs
+from jaxchain.core.layout import NUM_DIRECTIONS, Bodies, State
+
+
+def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = None,
+           vel: jax.Array | None = None, table: pairs.Neighbors | None = None):
+  """`config.iterations` resolution passes from `pos` (`[2, n, B]`).
+
+  Returns:
+    `(pos, vel, status [B], crushed [n, B], touching [4, n, B])` (`vel` None without
+    `vel`; `touching` ORed over the passes). `DEPTH_EXHAUSTED` comes from the last pass
+    (earlier passes may leave work that later ones finish).
+  """
+  n, B = bodies.shape
+  mass = chain.body_mass(bodies.inv_mass, bodies.active)
+  movable = bodies.movable
+  one_way = None
+  if config.one_way:
+    one_way = contacts.OneWay(one_way=bodies.active & bodies.one_way,
+                              solid=bodies.fixed & ~bodies.one_way)
+  # Seams: the faces of immovable bodies make surfaces (one-way bodies excepted; sensors
+  # are out of every candidate table already).
+  surface = None
+  if config.immovable and start is not None:
+    surface = bodies.fixed & ~bodies.one_way if config.one_way else bodies.fixed
+  table = pairs.build(pos, bodies, config, start) if table is None else table
+
+  def resolve(f, p, v):
+    """The stages after the link table: chain, crushing, friction."""
+    out = chain.displacement(f, mass, ~movable, depth=config.depth,
+                             track_immovable=config.immovable, vel=v, stick=friction.STICK,
+                             converge=config.converge)
+    scaled, exhausted = out.scaled, out.exhausted
+    if v is not None:
+      # The select (a no-op: immovable bodies' changes are 0) keeps LLVM from
+      # contracting the update into a fused multiply-add.
+      v = v + jnp.where(movable[None], out.dvel, 0.0)
+      if config.immovable:
+        v = chain.crush(v, f, out.jammed, movable)
+      if config.has_friction:
+        v, rubbed, cut = friction.friction(v, f, out.impulse, bodies.friction, out.shared,
+                                           out.sticking, mass, depth=config.depth,
+                                           converge=config.converge, short=out.short)
+        scaled, exhausted = scaled | rubbed, exhausted | cut
+    return p + out.disp, v, scaled, exhausted, out.crushed
+
+  def one_pass(_, carry):
+    p, v, code, _, crushed, touching = carry
+    cand, found = pairs.candidates(p, bodies, config, table)
+    cand = contacts.admit(cand, bodies, layers=config.layers, sensors=config.sensors)
+    ow = one_way if one_way is None or v is None else dataclasses.replace(one_way, vel=v)
+    c = contacts.contacts(p, bodies.half, cand, config.skin, start, ow, surface)
+    f, overflow = contacts.link_table(c, cand, config.links, rows=movable)
+    if f.slots > 1 and f.idx is not None:
+      # Link slots that cost what the batch needs: a settled room has at most one link
+      # per body and direction, and a batch in which no body has a second one runs the
+      # chain on one slot (the same answer, half the hops' gathers).
+      new_p, v, scaled, exhausted, hit = lax.cond(
+          jnp.any(f.mask[1:]), lambda: resolve(f, p, v), lambda: resolve(f.first(1), p, v))
+    else:
+      new_p, v, scaled, exhausted, hit = resolve(f, p, v)
+    code = (code | found | flags.bit(overflow, status.LINK_OVERFLOW)
+            | flags.bit(scaled, status.IMPULSES_SCALED))
+    return new_p, v, code, exhausted, crushed | hit, touching | contacts.touching(f)
+
+  init = (pos, vel, jnp.zeros((B,), jnp.int32), jnp.zeros((B,), bool), jnp.zeros((n, B), bool),
+          jnp.zeros((NUM_DIRECTIONS, n, B), bool))
+  p, v, code, exhausted, crushed, touching = lax.fori_loop(0, config.iterations, one_pass, init)
+  return p, v, code | flags.bit(exhausted, status.DEPTH_EXHAUSTED), crushed, touching
+
+
+def sensors(bodies: Bodies, pos: jax.Array, config, table: pairs.Neighbors | None = None, *,
+            start: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+  """`sensed` (`[n, B]`) at `pos`, or with `start` swept over the motion from `start`
+  (a substep), and the status bits of the candidate table it reads; all False without
+  `config.sensors`."""
+  n, B = bodies.shape
+  if not config.sensors:
+    return jnp.zeros((n, B), bool), jnp.zeros((B,), jnp.int32)
+  cand, found = pairs.candidates(pos, bodies, config, table)
+  return flags.sensed(bodies, pos, cand, start), found
+
+
+def crushed_bit(crushed: jax.Array) -> jax.Array:
+  return flags.bit(jnp.any(crushed, axis=0), status.CRUSHED)
+
+
+def substep(state: State, bodies: Bodies, config, sub_dt: float,
+            accel: jax.Array | None) -> State:
+  """Integrate (semi-implicit Euler), then the passes, which move the bodies apart and
+  update their velocities from the contact impulses and friction."""
+  pos, vel = state.pos, state.vel
+  active, movable = bodies.active[None], bodies.movable[None]
+  if accel is not None:
+    vel = vel + jnp.where(active, accel * sub_dt, 0.0)
+  if config.has_gravity:
+    vel = vel + jnp.where(movable, bodies.gravity[:, None, :] * sub_dt, 0.0)
+  code = flags.too_fast(bodies, vel, sub_dt)
+  motion = jnp.where(active, vel * sub_dt, 0.0)
+  code = code | flags.motion_lost(pos, vel, motion)
+  # pos + motion, written to round as XLA:CPU rounds the [n, 2] layout of the previous
+  # core (one fused multiply-add along x, two roundings along y): bit-identical results
+  # while both exist.
+  predicted = jnp.stack([jnp.where(active[0], pos[0] + vel[0] * sub_dt, pos[0]),
+                         pos[1] + motion[1]])
+  table = pairs.build(predicted, bodies, config, pos)  # None without neighbours.
+  p, v, found, crushed, touching = passes(bodies, predicted, config, start=pos, vel=vel,
+                                          table=table)
+  # Sensors see every overlap during the step: swept over this substep's motion.
+  sensed, seen = sensors(bodies, p, config, table, start=pos)
+  code = code | found | seen | flags.finite(bodies, p, v) | crushed_bit(crushed)
+  return State(pos=p, vel=v, status=state.status | code, touching=state.touching | touching,
+               crushed=state.crushed | crushed, sensed=state.sensed | sensed)
+
+
+def step(state: State, bodies: Bodies, config, accel: jax.Array | None = None) -> State:
+  """One step: `config.substeps` substeps of `dt / substeps`. `accel`: optional
+  `[2, n, B]` accelerations for this step (every active body)."""
+  sub_dt = config.dt / config.substeps
+  zeros = lambda x: jnp.zeros_like(x)
+  state = dataclasses.replace(state, crushed=zeros(state.crushed),
+                              touching=zeros(state.touching), sensed=zeros(state.sensed),
+                              status=state.status | flags.switched_off(bodies, config))
+  if config.substeps == 1:
+    return substep(state, bodies, config, sub_dt, accel)
+  return lax.fori_loop(0, config.substeps,
+                       lambda _, s: substep(s, bodies, config, sub_dt, accel), state)
+
+
+def resolve(state: State, bodies: Bodies, config) -> State:
+  """Collision resolution only: positions, `crushed`, `touching`, `sensed`, status;
+  velocities untouched."""
+  pos, _, code, crushed, touching = passes(bodies, state.pos, config)
+  sensed, found = sensors(bodies, pos, config)
+  code = (code | found | flags.finite(bodies, state.pos, pos) | crushed_bit(crushed)
+          | flags.switched_off(bodies, config, physics=False))
+  return dataclasses.replace(state, pos=pos, crushed=crushed, touching=touching, sensed=sensed,
+                             status=state.status | code)
+
+
+def rollout(state: State, bodies: Bodies, config, n_steps: int,
+            controls: jax.Array | None = None,
+            policy: Callable[[State, jax.Array], jax.Array] | None = None,
+            record: Sequence[str] = ()) -> tuple[State, dict[str, jax.Array]]:
+  """`n_steps` steps under `lax.scan`, in this layout throughout.
+
+  Args:
+    controls: optional `[n_steps, 2, n, B]` accelerations.
+    policy: optional `policy(state, t) -> [2, n, B]` accelerations (closed loop).
+    record: names of `State` fields kept per step besides `pos` and `vel`.
+
+  Returns:
+    `(final, trajectory)`, the trajectory a dict of `[n_steps, ...]` arrays.
+  """
+  def body(s, xs):
+    t, given = xs
+    accel = given if policy is None else policy(s, t)
+    s = step(s, bodies, config, accel)
+    out = {"pos": s.pos, "vel": s.vel}
+    out.update({name: getattr(s, name) for name in record})
+    return s, out
+
+  steps = jnp.arange(n_steps, dtype=jnp.int32)
+  return lax.scan(body, state, (steps, controls), length=n_steps)
