@@ -566,7 +566,7 @@ def test_load_picks_the_format_by_extension(tmp_path):
 
 def test_shipped_levels_load_by_name():
   assert levels.names() == ["platformer1", "platformer2", "sokoban1", "sokoban2", "sokoban3"]
-  shipped = pathlib.Path(levels.__file__).parent / "data" / "levels"
+  shipped = pathlib.Path(jc.__file__).parent / "data" / "levels"
   for name in levels.names():
     by_name = levels.load(name)
     (path,) = shipped.glob(f"{name}.*")
@@ -679,6 +679,37 @@ def test_a_loaded_level_settles_on_its_merged_floor():
   assert int(final.status) == 0
 
 
+def test_one_module_per_format():
+  """`jaxchain.levels` is a package (DESIGN.md section 7): the shared `Level` and one
+  module per format, the public names re-exported as they were by the one module."""
+  root = pathlib.Path(levels.__file__).parent
+  assert root.name == "levels" and levels.__file__.endswith("__init__.py")
+  assert sorted(p.name for p in root.glob("*.py")) == [
+      "__init__.py", "ascii.py", "files.py", "level.py", "loader.py", "tiled.py", "tmx.py",
+      "xsb.py"]
+  where = {"Level": "level", "Tile": "level", "rectangles": "level", "parse_ascii": "ascii",
+           "parse_xsb_collection": "xsb", "load_collection": "xsb", "parse_moves": "xsb",
+           "load_tiled": "tiled", "tmx_to_json": "tmx", "load": "loader", "names": "files"}
+  for name, module in where.items():
+    assert getattr(levels, name).__module__ == f"jaxchain.levels.{module}", name
+  assert set(levels.__all__) == {
+      "ALL", "BOX", "BOX_TILE", "CATEGORIES", "DEFAULT_MASS", "FLAG_TILE", "FLIP_BITS",
+      "GID_MASK", "GOAL_TILE", "HAZARD_TILE", "HEAVY_TILE", "LEGEND", "Level", "PLATFORM_TILE",
+      "PLAYER", "PLAYER_TILE", "POINT_HALF", "SENSOR", "SLAB", "SOLID", "Tile", "WALL", "load",
+      "load_collection", "load_tiled", "names", "parse_ascii", "parse_moves",
+      "parse_xsb_collection", "rectangles", "tmx_to_json"}
+  assert all(hasattr(levels, name) for name in levels.__all__)
+  # No module is the old 1,684-line file again.
+  assert max(len(p.read_text().splitlines()) for p in root.glob("*.py")) < 800
+
+
 def test_doctests():
-  result = doctest.testmod(levels, optionflags=doctest.ELLIPSIS)
-  assert result.attempted > 10 and result.failed == 0
+  """Every module of the package (`testmod(levels)` alone sees only the re-exports'
+  package docstring: doctest skips objects defined in another module)."""
+  attempted = 0
+  for module in (levels, levels.level, levels.ascii, levels.xsb, levels.tmx, levels.tiled,
+                 levels.files, levels.loader):
+    result = doctest.testmod(module, optionflags=doctest.ELLIPSIS)
+    assert result.failed == 0, module.__name__
+    attempted += result.attempted
+  assert attempted > 30

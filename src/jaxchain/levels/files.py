@@ -1,0 +1,62 @@
+"""Level files: where they are (paths, and the levels shipped with jaxchain) and
+where in them an error is.
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+import pathlib
+
+
+class _Where:
+  """Where in a Tiled map an error is (for messages)."""
+
+  def __init__(self, source: str, layer: str | None = None, obj: str | None = None):
+    self.source, self.layer, self.obj = source, layer, obj
+
+  def __str__(self):
+    parts = [self.source] + [p for p in (self.layer, self.obj) if p]
+    return ", ".join(parts)
+
+  def error(self, message: str) -> ValueError:
+    return ValueError(f"{self}: {message}")
+
+_SUFFIXES = {".txt": "ascii", ".xsb": "xsb", ".tmj": "tiled", ".json": "tiled", ".tmx": "tmx"}
+
+
+def _shipped():
+  return importlib.resources.files("jaxchain").joinpath("data", "levels")
+
+
+def names() -> list[str]:
+  """The names of the levels shipped with jaxchain (for `load`).
+
+  Examples:
+    >>> from jaxchain import levels
+    >>> "sokoban1" in levels.names()
+    True
+  """
+  return sorted(p.name.rsplit(".", 1)[0] for p in _shipped().iterdir()
+                if "." in p.name and "." + p.name.rsplit(".", 1)[1] in _SUFFIXES)
+
+
+def _level_file(path):
+  """The file of a path, or of a shipped level's name (`names()`)."""
+  file = pathlib.Path(path)
+  if not file.exists() and isinstance(path, str) and not file.suffix and "/" not in path:
+    shipped = {p.name.rsplit(".", 1)[0]: p for p in _shipped().iterdir()}
+    if path not in shipped:
+      raise FileNotFoundError(f"no level file {path!r}, and no shipped level of that name "
+                              f"(shipped: {', '.join(names())})")
+    return shipped[path]
+  if not file.is_file():
+    raise FileNotFoundError(f"no level file {str(path)!r} (shipped levels: "
+                            f"{', '.join(names())})")
+  return file
+
+
+def _parent(file):
+  """The directory of a path or of an `importlib.resources` traversable."""
+  if isinstance(file, pathlib.Path):
+    return file.parent
+  return _shipped()
