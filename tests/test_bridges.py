@@ -8,6 +8,7 @@ in NumPy, and the single env passes Gymnasium's own checker. Tasks are tiny
 
 import copy
 import doctest
+import pathlib
 import pickle
 import subprocess
 import sys
@@ -43,6 +44,28 @@ def test_import_jaxchain_needs_neither_package():
 def test_doctests():
   result = doctest.testmod(bridges, optionflags=doctest.ELLIPSIS)
   assert result.attempted > 0 and result.failed == 0
+
+
+def test_one_module_per_client():
+  """`jaxchain.bridges` is a package (DESIGN.md section 7): one module per client, what
+  they share in `common`, the public names re-exported by `__init__` (the classes
+  lazily, under `jaxchain.bridges.<name>` for pickle)."""
+  import jaxchain.bridges.common
+  import jaxchain.bridges.gymnasium
+  import jaxchain.bridges.gymnax
+  import jaxchain.bridges.sb3
+  root = pathlib.Path(bridges.__file__).parent
+  assert root.name == "bridges" and bridges.__file__.endswith("__init__.py")
+  assert sorted(p.name for p in root.glob("*.py")) == [
+      "__init__.py", "common.py", "gymnasium.py", "gymnax.py", "sb3.py"]
+  assert jaxchain.bridges.gymnax.register_gymnax is bridges.register_gymnax
+  assert jaxchain.bridges.gymnasium.register_gymnasium is bridges.register_gymnasium
+  for name in ("GymnaxEnv", "GymnasiumEnv", "GymnasiumVectorEnv"):
+    cls = getattr(bridges, name)
+    assert (cls.__module__, cls.__qualname__) == ("jaxchain.bridges", name)
+  assert set(bridges.__all__) == {
+      "GymnaxEnv", "GymnaxState", "GymnasiumEnv", "GymnasiumVectorEnv", "SB3VecEnv",
+      "GYMNAX_IDS", "GYMNASIUM_IDS", "register_gymnax", "register_gymnasium"}
 
 
 def test_unknown_attribute():
