@@ -1,5 +1,6 @@
 """Levels: ASCII (Sokoban XSB and platformer characters) and Tiled JSON maps."""
 
+import codecs
 import collections
 import doctest
 import json
@@ -562,6 +563,54 @@ def test_load_picks_the_format_by_extension(tmp_path):
     levels.load(tmp_path / "e.tmj")
   with pytest.raises(FileNotFoundError, match="no level file"):
     levels.load(tmp_path / "none.txt")
+
+
+def _same_level(a, b, names=True):
+  assert (dict(a.tags), a.bounds, a.gravity) == (dict(b.tags), b.bounds, b.gravity)
+  assert a.name == b.name or not names
+  for field in ("pos", "half", "mass", "vel", "friction", "one_way", "sensor", "category",
+                "mask"):
+    np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
+
+
+BOM = codecs.BOM_UTF8
+
+
+def test_a_byte_order_mark_is_not_part_of_the_level(tmp_path):
+  """Files saved "UTF-8 with BOM", with CRLF line ends, as editors on Windows save them,
+  load as without the mark: a collection that starts with a map keeps that map's top
+  wall row (not a title '\ufeff#####' and a room open at the top), and a one-map .xsb,
+  a .txt, a .tmj, a .tmx, their external tilesets and templates load."""
+  rooms = "#####\r\n#@$.#\r\n#####\r\n\r\n######\r\n#@ $.#\r\n######\r\n"
+  (tmp_path / "c.xsb").write_bytes(BOM + rooms.encode())
+  got = levels.load_collection(tmp_path / "c.xsb")
+  assert [lv.name for lv in got] == ["c 1", "c 2"]
+  assert got[0].bounds == (0, 0, 5, 3) and got[0].num_bodies == 7  # 4 walls, @, $, .
+  for a, b in zip(got, levels.parse_xsb_collection(rooms.replace("\r", ""), name="c")):
+    _same_level(a, b)
+  one = "#####\r\n#@$.#\r\n#####\r\n"
+  for name in ("one.xsb", "one.txt"):
+    (tmp_path / name).write_bytes(BOM + one.encode())
+    (tmp_path / ("plain_" + name)).write_text(one.replace("\r", ""))
+    a, b = levels.load(tmp_path / name), levels.load(tmp_path / ("plain_" + name))
+    _same_level(a, b, names=False)
+    assert a.num_bodies == 7
+  _same_level(levels.parse_ascii("\ufeff" + one), levels.parse_ascii(one))
+  # Tiled: the map, its external tilesets (.tsx, .tsj) and a template, each with a BOM.
+  for ext in ("tsx", "tsj"):
+    (tmp_path / f"ledges.{ext}").write_bytes(BOM + (DATA / f"ledges.{ext}").read_bytes())
+    (tmp_path / f"m_{ext}.tmj").write_bytes(BOM + (DATA / f"external_{ext}.tmj").read_bytes())
+    a, b = levels.load(tmp_path / f"m_{ext}.tmj"), levels.load(DATA / f"external_{ext}.tmj")
+    _same_level(a, b, names=False)
+    assert a.num_bodies == 2 and a.one_way.tolist() == [True, False]
+  (tmp_path / "crate.tx").write_bytes(BOM + b'<template><object name="crate" width="16" '
+                                      b'height="16"/></template>')
+  (tmp_path / "m.tmx").write_bytes(BOM + (
+      '<?xml version="1.0" encoding="UTF-8"?>\r\n<map orientation="orthogonal" width="4" '
+      'height="4" tilewidth="16" tileheight="16"><objectgroup name="o">'
+      '<object id="1" template="crate.tx" x="16" y="32"/></objectgroup></map>').encode())
+  lv = levels.load(tmp_path / "m.tmx")
+  assert lv.tags["crate"] == (0,) and lv.pos.tolist() == [[1.5, 1.5]]
 
 
 def test_shipped_levels_load_by_name():

@@ -74,7 +74,8 @@ def parse_ascii(text: str, legend=None, *, name: str = "", gravity=(0.0, -9.81),
   | `X` | hazard: a full-cell sensor whose mask admits only `PLAYER`, runs merged, tag "hazard" |
 
   Lines starting with `;` are comments (XSB titles), and blank lines before and
-  after the map are dropped; `\\r\\n` line ends are accepted.
+  after the map are dropped; `\\r\\n` line ends are accepted, and a leading
+  byte-order mark is dropped.
 
   Ragged maps: XSB files trim trailing spaces, so their lines differ in length. A
   line shorter than the longest is padded with floor when it ends in a wall (a
@@ -120,6 +121,7 @@ def parse_ascii(text: str, legend=None, *, name: str = "", gravity=(0.0, -9.81),
   """
   source = source or name or "<ascii>"
   table = _legend(legend)
+  text = text.removeprefix("\ufeff")  # A byte-order mark (a file read as "utf-8").
   numbered = [(k + 1, line.rstrip("\r")) for k, line in enumerate(text.split("\n"))]
   numbered = [(k, line) for k, line in numbered if not (line.startswith(";") and ";" not in table)]
   while numbered and not numbered[0][1].strip():

@@ -21,6 +21,22 @@ class _Where:
   def error(self, message: str) -> ValueError:
     return ValueError(f"{self}: {message}")
 
+
+def _read_text(file) -> str:
+  """The text of a level file (a path or an `importlib.resources` traversable), read
+  as it is saved: UTF-8, with or without a byte-order mark (dropped).
+
+  Raises:
+    OSError: when the file cannot be read. ValueError: when it is not UTF-8 (the
+      message does not name the file: the caller does).
+  """
+  data = file.read_bytes()
+  try:
+    return data.decode("utf-8-sig")
+  except UnicodeDecodeError as e:
+    raise ValueError(f"not UTF-8 text ({e.reason} at byte {e.start})") from None
+
+
 _SUFFIXES = {".txt": "ascii", ".xsb": "xsb", ".tmj": "tiled", ".json": "tiled", ".tmx": "tmx"}
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 
 from jaxchain.levels.ascii import _legend, parse_ascii
-from jaxchain.levels.files import _SUFFIXES, _level_file, _parent
+from jaxchain.levels.files import _SUFFIXES, _level_file, _parent, _read_text
 from jaxchain.levels.level import Level
 from jaxchain.levels.tiled import load_tiled
 from jaxchain.levels.tmx import tmx_to_json
@@ -96,7 +96,10 @@ def load(path, legend=None, *, strict: bool = False, gravity=None) -> Level:
   if suffix not in _SUFFIXES:
     raise ValueError(f"{file.name}: unsupported level file extension {suffix!r}; expected "
                      f"one of {', '.join(_SUFFIXES)}")
-  text = file.read_text(encoding="utf-8")
+  try:
+    text = _read_text(file)
+  except ValueError as e:
+    raise ValueError(f"{file.name}: {e}") from None
   stem = file.name.rsplit(".", 1)[0]
   kind = _SUFFIXES[suffix]
   if kind == "tmx":

@@ -19,7 +19,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from jaxchain.levels.files import _Where
+from jaxchain.levels.files import _read_text, _Where
 from jaxchain.levels.level import (ALL, BOX, BOX_TILE, CATEGORIES, PLAYER, PLAYER_TILE, SENSOR,
                                    SLAB, SOLID, Level, _Body, _level, _U32, rectangles)
 from jaxchain.levels.tmx import _xml_int, _xml_object, _xml_value
@@ -295,10 +295,12 @@ def _read_tileset(ts: Mapping, base, where: _Where) -> list:
     raise where.error(f"external tileset {source!r} cannot be found without the map's directory")
   path = base.joinpath(source)
   try:
-    text = path.read_text(encoding="utf-8")
+    text = _read_text(path)
   except OSError as e:
     raise where.error(f"external tileset {source!r} cannot be read ({e}); embed the tileset "
                       f"in the map or ship the file beside it") from None
+  except ValueError as e:
+    raise where.error(f"external tileset {source!r}: {e}") from None
   if source.endswith(".tsx"):
     try:
       root = ElementTree.fromstring(text)
@@ -617,10 +619,12 @@ def _apply_template(obj, where: _Where, ctx: _Context) -> dict:
     raise where.error(f"template {path!r} cannot be found without the map's directory")
   file = ctx.base.joinpath(path)
   try:
-    text = file.read_text(encoding="utf-8")
+    text = _read_text(file)
   except OSError as e:
     raise where.error(f"template {path!r} cannot be read ({e}); ship it beside the map, or "
                       f"detach the template in Tiled") from None
+  except ValueError as e:
+    raise where.error(f"template {path!r}: {e}") from None
   try:
     if path.endswith(".tx"):
       root = ElementTree.fromstring(text)

@@ -35,6 +35,7 @@ def tmx_to_json(text: str, *, source: str = "<tmx>") -> dict:
     (2, 'tilelayer', '1,0')
   """
   where = _Where(source)
+  text = text.removeprefix("\ufeff")  # A byte-order mark (a file read as "utf-8").
   try:
     root = ElementTree.fromstring(text)
   except ElementTree.ParseError as e:

@@ -5,7 +5,7 @@ notation.
 from __future__ import annotations
 
 from jaxchain.levels.ascii import _legend, parse_ascii
-from jaxchain.levels.files import _level_file
+from jaxchain.levels.files import _level_file, _read_text
 from jaxchain.levels.level import Level
 
 
@@ -69,6 +69,7 @@ def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0
   """
   source = source or name or "<xsb>"
   table = _legend(legend)
+  text = text.removeprefix("\ufeff")  # A byte-order mark (a file read as "utf-8").
   lines = [line.rstrip("\r") for line in text.split("\n")]
   kinds, in_comment = [], False
   for line in lines:
@@ -149,7 +150,10 @@ def load_collection(path, legend=None, *, strict: bool = False, gravity=None) ->
     ['sokoban1 (jaxchain): one box, one goal']
   """
   file = _level_file(path)
-  text = file.read_text(encoding="utf-8")
+  try:
+    text = _read_text(file)
+  except ValueError as e:
+    raise ValueError(f"{file.name}: {e}") from None
   stem = file.name.rsplit(".", 1)[0]
   return parse_xsb_collection(text, legend, name=stem, strict=strict, source=file.name,
                               gravity=(0.0, 0.0) if gravity is None else gravity)
