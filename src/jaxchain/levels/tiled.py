@@ -8,7 +8,6 @@ import base64
 import binascii
 import dataclasses
 import difflib
-import gzip
 import json
 import math
 import os
@@ -35,6 +34,9 @@ _MOVABLE_TAGS = ("player", "box")
 # tagged "player" or "box": those are spawns, bodies of the ASCII `@` and `$` sizes).
 POINT_HALF = 0.05
 _F32_MAX = float(np.finfo(np.float32).max)
+# The most tiles a map may have (width x height; 2048 x 2048): a tile layer's GIDs take
+# 4 bytes a tile, and compressed tile data is inflated only up to the layer's size.
+MAX_TILES = 1 << 22
 
 
 def _number(value, what: str = "") -> float:
@@ -258,15 +260,10 @@ def _gids(layer: Mapping, width: int, height: int, where: _Where) -> np.ndarray:
     if compression == "zstd":
       raise where.error("zstd compression is not supported (the Python standard library has "
                         "no zstd); save the layer with zlib or gzip compression, or as CSV")
-    try:
-      if compression == "zlib":
-        raw = zlib.decompress(raw)
-      elif compression == "gzip":
-        raw = gzip.decompress(raw)
-      elif compression:
-        raise where.error(f"unknown compression {compression!r} (expected zlib, gzip or none)")
-    except (zlib.error, OSError, EOFError) as e:
-      raise where.error(f"tile data does not decompress as {compression} ({e})") from None
+    if compression in ("zlib", "gzip"):
+      raw = _inflate(raw, compression, 4 * width * height, width, height, where)
+    elif compression:
+      raise where.error(f"unknown compression {compression!r} (expected zlib, gzip or none)")
     if len(raw) % 4:
       raise where.error(f"decoded tile data has {len(raw)} bytes, not a multiple of 4")
     gids = np.frombuffer(raw, "<u4").astype(np.uint32)
@@ -276,6 +273,26 @@ def _gids(layer: Mapping, width: int, height: int, where: _Where) -> np.ndarray:
     raise where.error(f"tile data has {gids.size} tiles, expected {width}x{height} = "
                       f"{width * height}")
   return (gids & np.uint32(GID_MASK)).reshape(height, width)
+
+
+def _inflate(raw: bytes, compression: str, size: int, width: int, height: int,
+             where: _Where) -> bytes:
+  """Decompresses zlib or gzip tile data that must inflate to exactly `size` bytes,
+  never producing more than `size + 1` of them (a bomb stops there)."""
+  d = zlib.decompressobj(zlib.MAX_WBITS | (16 if compression == "gzip" else 0))
+  try:
+    out = d.decompress(raw, size + 1)
+  except zlib.error as e:
+    raise where.error(f"tile data does not decompress as {compression} ({e})") from None
+  if len(out) > size:
+    raise where.error(f"tile data inflates past the layer's {width}x{height} tiles ({size} "
+                      f"bytes) ({compression}): refused before inflating further")
+  if not d.eof:
+    raise where.error(f"tile data does not decompress as {compression} (the stream stops "
+                      f"short of its end)")
+  if d.unused_data:
+    raise where.error(f"tile data has data after the end of its {compression} stream")
+  return out
 
 
 def _read_tileset(ts: Mapping, base, where: _Where) -> list:
@@ -424,6 +441,9 @@ def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
                       "map finite (map property Infinite off) and save it again")
   width, height = _int_field(data, "width", where), _int_field(data, "height", where)
   tw, th = _int_field(data, "tilewidth", where), _int_field(data, "tileheight", where)
+  if width * height > MAX_TILES:
+    raise where.error(f"the map is {width}x{height} = {width * height} tiles, more than the "
+                      f"limit levels.MAX_TILES = {MAX_TILES} (2048x2048)")
   map_props = _properties(data.get("properties"), _Where(where.source, "map properties"),
                           known=_MAP_PROPERTIES)
   unit = map_props.get("unit")

@@ -1,0 +1,101 @@
+"""Level loaders under attack: hostile files fail fast with a ValueError naming the file
+and the limit (docs/levels.md, "Limits").
+
+Every hostile input is built here, small on disk (a deflate stream of zeros is built by
+repeating one flushed block, with its checksum, in well under a second). Each refusal
+is timed and its peak memory traced (`tracemalloc` sees Python's and NumPy's
+allocations); the issue's bounds are 5 s and 500 MB, and the fixed loaders stay far
+below both. No jit anywhere.
+"""
+
+import base64
+import json
+import struct
+import time
+import tracemalloc
+import zlib
+
+import numpy as np
+import pytest
+
+from jaxchain import levels
+
+MB = 1 << 20
+SOLID = [{"name": "solid", "type": "bool", "value": True}]
+
+
+def _refused(fn, match, seconds=5.0, megabytes=100):
+  """Runs `fn`, which must raise a ValueError matching `match`, within `seconds` and
+  `megabytes` of traced peak memory; returns the message."""
+  tracemalloc.start()
+  start = time.perf_counter()
+  try:
+    with pytest.raises(ValueError, match=match) as info:
+      fn()
+  finally:
+    elapsed = time.perf_counter() - start
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+  assert elapsed < seconds, f"{elapsed:.1f} s"
+  assert peak < megabytes * MB, f"{peak / MB:.0f} MB"
+  return str(info.value)
+
+
+def _zeros_stream(n: int, wrapper: str) -> bytes:
+  """A zlib or gzip stream that inflates to `n` zero bytes (`n` a multiple of 16 MiB),
+  checksum and all: one block of 16 MiB of zeros, flushed so that it stands alone,
+  repeated; then an empty final block and the trailer."""
+  chunk = bytes(16 * MB)
+  co = zlib.compressobj(9, zlib.DEFLATED, -15)  # Raw deflate.
+  block = co.compress(chunk) + co.flush(zlib.Z_FULL_FLUSH)
+  body = block * (n // len(chunk)) + b"\x03\x00"  # BFINAL, fixed codes, end of block.
+  if wrapper == "zlib":  # Adler-32 of n zeros: a = 1, b = n (mod 65521).
+    return b"\x78\xda" + body + struct.pack(">I", ((n % 65521) << 16) | 1)
+  crc = 0
+  for _ in range(n // len(chunk)):
+    crc = zlib.crc32(chunk, crc)
+  header = b"\x1f\x8b\x08\x00\x00\x00\x00\x00\x02\xff"
+  return header + body + struct.pack("<II", crc, n & 0xFFFFFFFF)
+
+
+def _tile_map(data, width, height, **layer):
+  return {"orientation": "orthogonal", "width": width, "height": height, "tilewidth": 16,
+          "tileheight": 16, "tilesets": [],
+          "layers": [{"type": "tilelayer", "name": "ground", "width": width, "height": height,
+                      "properties": SOLID, "data": data, **layer}]}
+
+
+# 5. Compressed tile data is inflated only up to the layer's size.
+
+
+@pytest.mark.parametrize("wrapper, size", [("zlib", 2 << 30), ("gzip", 1 << 30)])
+def test_a_compressed_layer_that_inflates_past_its_size_is_refused(tmp_path, wrapper, size):
+  stream = _zeros_stream(size, wrapper)
+  assert len(stream) < size // 900  # About 1,000:1.
+  assert zlib.decompressobj(47).decompress(stream, 64) == bytes(64)  # A real stream.
+  path = tmp_path / "bomb.tmj"
+  path.write_text(json.dumps(_tile_map(base64.b64encode(stream).decode(), 64, 64,
+                                       encoding="base64", compression=wrapper)))
+  message = _refused(lambda: levels.load(path), r"bomb.tmj, layer 'ground': tile data "
+                     rf"inflates past the layer's 64x64 tiles \(16384 bytes\) \({wrapper}\)")
+  assert "does not decompress" not in message
+  # A stream that stops short, or holds data after its end, is an error too.
+  for bad in (stream[:1000], zlib.compress(bytes(4 * 64 * 64)) + b"junk"):
+    data = _tile_map(base64.b64encode(bad).decode(), 64, 64, encoding="base64",
+                     compression="zlib")
+    with pytest.raises(ValueError, match=r"layer 'ground': tile data (does not decompress|"
+                                         r"inflates past|has data after)"):
+      levels.load_tiled(data)
+
+
+def test_a_map_larger_than_the_tile_limit_is_refused_before_its_data_is_read():
+  assert levels.MAX_TILES == 1 << 22
+  data = _tile_map("", 1 << 16, 1 << 16, encoding="base64", compression="zlib")
+  _refused(lambda: levels.load_tiled(data, source="huge.tmj"),
+           r"huge.tmj: the map is 65536x65536 = 4294967296 tiles, more than the limit "
+           r"levels.MAX_TILES = 4194304")
+  # At the limit: 2048 x 2048 tiles of zeros (zlib) load, to no body.
+  raw = zlib.compress(bytes(4 << 22))
+  lv = levels.load_tiled(_tile_map(base64.b64encode(raw).decode(), 2048, 2048,
+                                   encoding="base64", compression="zlib"))
+  assert lv.num_bodies == 0 and lv.bounds == (0, 0, 2048, 2048)
