@@ -10,6 +10,7 @@ below both. No jit anywhere.
 
 import base64
 import json
+import os
 import struct
 import time
 import tracemalloc
@@ -99,3 +100,47 @@ def test_a_map_larger_than_the_tile_limit_is_refused_before_its_data_is_read():
   lv = levels.load_tiled(_tile_map(base64.b64encode(raw).decode(), 2048, 2048,
                                    encoding="base64", compression="zlib"))
   assert lv.num_bodies == 0 and lv.bounds == (0, 0, 2048, 2048)
+
+
+# 6. Files: regular files only, at most MAX_FILE_BYTES each.
+
+
+def _map_naming(tileset=None, template=None):
+  objects = [{"id": 1, "template": template, "x": 0, "y": 16}] if template else []
+  return {"orientation": "orthogonal", "width": 2, "height": 1, "tilewidth": 16,
+          "tileheight": 16, "tilesets": [{"firstgid": 1, "source": tileset}] if tileset else [],
+          "layers": [{"type": "objectgroup", "name": "o", "objects": objects}]}
+
+
+def _sparse(path, size):
+  """A file of `size` bytes that takes no disk (a hole)."""
+  with open(path, "wb") as f:
+    f.truncate(size)
+  return path
+
+
+def test_files_must_be_regular_files_of_at_most_max_file_bytes(tmp_path):
+  assert levels.MAX_FILE_BYTES == 8 * MB
+  big = _sparse(tmp_path / "big.tsx", levels.MAX_FILE_BYTES + 1)
+  fifo = tmp_path / "fifo.tsx"
+  os.mkfifo(fifo)  # Opening it for reading would wait for a writer: it is never opened.
+  (tmp_path / "dir.tsx").mkdir()
+  cases = [(str(big), r"8388609 bytes, more than the limit levels.MAX_FILE_BYTES = 8388608"),
+           (str(fifo), r"not a regular file \(a FIFO\)"),
+           ("dir.tsx", r"not a regular file \(a directory\)")]
+  if os.path.exists("/dev/zero"):
+    cases.append(("/dev/zero", r"not a regular file \(a character device\)"))
+  for name, why in cases:
+    for kind in ("tileset", "template"):
+      path = tmp_path / f"{kind}.tmj"
+      path.write_text(json.dumps(_map_naming(**{kind: name})))
+      what = "external tileset" if kind == "tileset" else "layer 'o', object 1: template"
+      _refused(lambda: levels.load(path), rf"{kind}.tmj, .*{what} '{name}': {why}",
+               seconds=2, megabytes=20)
+  # The map itself, and a collection.
+  for name in ("huge.tmj", "huge.tmx", "huge.xsb", "huge.txt"):
+    _refused(lambda: levels.load(_sparse(tmp_path / name, 1 << 30)),
+             rf"{name}: 1073741824 bytes, more than the limit levels.MAX_FILE_BYTES",
+             seconds=2, megabytes=20)
+  _refused(lambda: levels.load_collection(tmp_path / "huge.xsb"),
+           r"huge.xsb: 1073741824 bytes, more than the limit", seconds=2, megabytes=20)

@@ -27,7 +27,7 @@ bodies.
 """
 
 from jaxchain.levels.ascii import LEGEND, parse_ascii
-from jaxchain.levels.files import names
+from jaxchain.levels.files import MAX_FILE_BYTES, names
 from jaxchain.levels.level import (ALL, BOX, BOX_TILE, CATEGORIES, FLAG_TILE, GOAL_TILE,
                                    HAZARD_TILE, HEAVY_TILE, PLATFORM_TILE, PLAYER, PLAYER_TILE,
                                    SENSOR, SLAB, SOLID, WALL, Level, Tile, rectangles)
@@ -39,7 +39,7 @@ from jaxchain.levels.xsb import load_collection, parse_moves, parse_xsb_collecti
 
 __all__ = [
     "ALL", "BOX", "BOX_TILE", "CATEGORIES", "DEFAULT_MASS", "FLAG_TILE", "FLIP_BITS", "GID_MASK",
-    "GOAL_TILE", "HAZARD_TILE", "HEAVY_TILE", "LEGEND", "Level", "MAX_TILES", "PLATFORM_TILE",
+    "GOAL_TILE", "HAZARD_TILE", "HEAVY_TILE", "LEGEND", "Level", "MAX_FILE_BYTES", "MAX_TILES", "PLATFORM_TILE",
     "PLAYER", "PLAYER_TILE", "POINT_HALF", "SENSOR", "SLAB", "SOLID", "Tile", "WALL", "load",
     "load_collection", "load_tiled", "names", "parse_ascii", "parse_moves",
     "parse_xsb_collection", "rectangles", "tmx_to_json",

@@ -5,7 +5,9 @@ where in them an error is.
 from __future__ import annotations
 
 import importlib.resources
+import os
 import pathlib
+import stat
 
 
 class _Where:
@@ -22,15 +24,51 @@ class _Where:
     return ValueError(f"{self}: {message}")
 
 
+# The largest level file a loader reads (a map, a collection, an external tileset or
+# template): 8 MiB. JSON and XML parsers take up to about 33 times a file's size in
+# memory (a JSON array of '{"":{}}': 265 MB for 8 MiB), so this bounds a load to ~300 MB.
+MAX_FILE_BYTES = 8 << 20
+_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"),
+          (stat.S_ISSOCK, "a socket"))
+
+
+def _check_regular(mode: int, size: int) -> None:
+  if not stat.S_ISREG(mode):
+    kind = next((name for test, name in _KINDS if test(mode)), "not a file")
+    raise ValueError(f"not a regular file ({kind}): a level, its tilesets and templates must "
+                     f"be regular files")
+  if size > MAX_FILE_BYTES:
+    raise ValueError(f"{size} bytes, more than the limit levels.MAX_FILE_BYTES = "
+                     f"{MAX_FILE_BYTES} (8 MiB)")
+
+
+def _read_bytes(path: pathlib.Path) -> bytes:
+  """The bytes of a regular file of at most `MAX_FILE_BYTES`, checked before reading (a
+  device, a FIFO or a directory is never read, nor opened for reading), and read with
+  that cap in case the file grows meanwhile."""
+  st = os.stat(path)
+  _check_regular(st.st_mode, st.st_size)
+  fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+  with os.fdopen(fd, "rb") as f:
+    st = os.fstat(f.fileno())  # The file opened is the file checked.
+    _check_regular(st.st_mode, st.st_size)
+    data = f.read(MAX_FILE_BYTES + 1)
+  _check_regular(stat.S_IFREG, len(data))
+  return data
+
+
 def _read_text(file) -> str:
-  """The text of a level file (a path or an `importlib.resources` traversable), read
-  as it is saved: UTF-8, with or without a byte-order mark (dropped).
+  """The text of a level file (a path, or a shipped level's `importlib.resources`
+  traversable), read as it is saved: UTF-8, with or without a byte-order mark
+  (dropped). A path must name a regular file of at most `MAX_FILE_BYTES`.
 
   Raises:
-    OSError: when the file cannot be read. ValueError: when it is not UTF-8 (the
-      message does not name the file: the caller does).
+    OSError: when the file cannot be read. ValueError: when it is not a regular file,
+      is too large, or is not UTF-8 (the message does not name the file: the caller
+      does).
   """
-  data = file.read_bytes()
+  data = _read_bytes(file) if isinstance(file, (str, os.PathLike)) else file.read_bytes()
   try:
     return data.decode("utf-8-sig")
   except UnicodeDecodeError as e:
