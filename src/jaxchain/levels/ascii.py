@@ -124,12 +124,22 @@ def parse_ascii(text: str, legend=None, *, name: str = "", gravity=(0.0, -9.81),
   text = text.removeprefix("\ufeff")  # A byte-order mark (a file read as "utf-8").
   numbered = [(k + 1, line.rstrip("\r")) for k, line in enumerate(text.split("\n"))]
   numbered = [(k, line) for k, line in numbered if not (line.startswith(";") and ";" not in table)]
-  while numbered and not numbered[0][1].strip():
-    numbered.pop(0)
   while numbered and not numbered[-1][1].strip():
     numbered.pop()
+  numbered.reverse()
+  while numbered and not numbered[-1][1].strip():
+    numbered.pop()
+  numbered.reverse()
   if not numbered:
     raise ValueError(f"{source}: no map rows (the text is empty, blank or only ';' comments)")
+  return _parse_rows(numbered, table, name, gravity, strict, source)
+
+
+def _parse_rows(numbered: list[tuple[int, str]], table: dict, name: str, gravity, strict: bool,
+                source: str) -> Level:
+  """The level of a map's rows `(line number, text)`, top to bottom (at least one):
+  `parse_ascii` once the comments and blank edges are gone (also the rows of one map
+  of a collection, numbered as in the whole text)."""
   grid = []
   for k, line in numbered:
     for c, ch in enumerate(line):

@@ -4,7 +4,7 @@ notation.
 
 from __future__ import annotations
 
-from jaxchain.levels.ascii import _legend, parse_ascii
+from jaxchain.levels.ascii import _legend, _parse_rows
 from jaxchain.levels.files import _level_file, _read_text
 from jaxchain.levels.level import Level
 
@@ -122,13 +122,13 @@ def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0
     while k > prev_end and kinds[k] == "blank":
       k -= 1
     while k > prev_end and kinds[k] == "text":
-      before.insert(0, lines[k].strip())
+      before.append(lines[k].strip())
       k -= 1
+    before.reverse()
     prev_end = end
     title = title_of(before, after) or f"{name or 'level'} {number}"
-    body = "\n" * start + "\n".join(lines[start:end + 1])
-    out.append(parse_ascii(body, legend, name=title, gravity=gravity, strict=strict,
-                           source=source))
+    rows = [(k + 1, lines[k]) for k in range(start, end + 1)]  # Numbered in the whole text.
+    out.append(_parse_rows(rows, table, title, gravity, strict, source))
   return out
 
 
