@@ -161,3 +161,22 @@ def test_a_collection_of_3000_levels_parses_in_linear_time():
   bad = text[:text.rindex("#@$.#")] + "#@?.#\n#####\n"
   with pytest.raises(ValueError, match=r"<xsb>: line 14998, column 3: unknown character '\?'"):
     levels.parse_xsb_collection(bad)
+
+
+# 8. Solutions: at most max_moves moves once expanded.
+
+
+def test_solutions_expanding_past_max_moves_are_refused():
+  assert levels.MAX_MOVES == 1_000_000
+  limit = r"more than max_moves = 1000000 moves \(levels.MAX_MOVES; raise it with max_moves=\)"
+  nested = "2(" * 40 + "r" + ")" * 40  # 2**40 moves from 121 characters.
+  for text, where in (("999999999r", 7), ("9(999999999r)", 9), ("d1000000r", 9),
+                      (nested, 101), ("9" * 5000 + "r", 7)):
+    message = _refused(lambda: levels.parse_moves(text), limit, seconds=1, megabytes=5)
+    assert message.startswith(f"moves: position {where}: ")
+  assert len(levels.parse_moves("1000000r")) == 1_000_000  # At the limit.
+  assert levels.parse_moves("d1000000r", max_moves=1_000_001)[:2] == "dr"
+  assert levels.parse_moves("(" * 10_000 + "2r" + ")" * 10_000) == "rr"  # No recursion.
+  assert levels.parse_moves("0(rr)u2()") == "u"
+  with pytest.raises(ValueError, match=r"max_moves must be an int >= 0, got -1"):
+    levels.parse_moves("r", max_moves=-1)

@@ -160,9 +160,12 @@ def load_collection(path, legend=None, *, strict: bool = False, gravity=None) ->
 
 
 _MOVE_LETTERS = frozenset("lurdLURD")
+# The most moves `parse_moves` expands a solution to (the longest published solutions
+# have tens of thousands).
+MAX_MOVES = 1_000_000
 
 
-def parse_moves(text: str) -> str:
+def parse_moves(text: str, *, max_moves: int = MAX_MOVES) -> str:
   """Expands a Sokoban solution in LURD notation into one letter per move.
 
   Letters `l u r d` are moves and `L U R D` pushes (kept as written); a count
@@ -170,42 +173,65 @@ def parse_moves(text: str) -> str:
   `ulul`: the run-length encoding of many published solutions); whitespace and
   line breaks are ignored.
 
+  Args:
+    text: the solution.
+    max_moves: the most moves it may expand to (`MAX_MOVES`, a million); counts are
+      checked as they are read, so `"999999999r"` is refused before anything is
+      built.
+
   Raises:
-    ValueError: for any other character, a count before nothing, or unbalanced
-      parentheses, naming the position.
+    ValueError: for any other character, a count before nothing, unbalanced
+      parentheses, or more than `max_moves` moves, naming the position.
 
   Examples:
     >>> from jaxchain import levels
     >>> levels.parse_moves("dl3u 2(rD)")
     'dluuurDrD'
   """
-  out, stack, count = [], [], ""
+  if isinstance(max_moves, bool) or not isinstance(max_moves, int) or max_moves < 0:
+    raise ValueError(f"parse_moves: max_moves must be an int >= 0, got {max_moves!r}")
+
+  def too_many(k):
+    return ValueError(f"moves: position {k + 1}: the solution expands to more than max_moves = "
+                      f"{max_moves} moves (levels.MAX_MOVES; raise it with max_moves=)")
+
+  # Each open group: (the pieces before it, their length, its count).
+  out, size, stack, count = [], 0, [], None
   for k, ch in enumerate(text):
     if ch.isspace():
-      if count:
+      if count is not None:
         raise ValueError(f"moves: position {k + 1}: a count ({count}) must come right before a "
                          f"move or a group")
       continue
-    if ch.isdigit():
-      count += ch
+    if ch in "0123456789":
+      count = (count or 0) * 10 + int(ch)
+      if count > max_moves:
+        raise too_many(k)
     elif ch in _MOVE_LETTERS:
-      out.append(ch * (int(count) if count else 1))
-      count = ""
+      times = 1 if count is None else count
+      size += times
+      if size > max_moves:
+        raise too_many(k)
+      out.append(ch * times)
+      count = None
     elif ch == "(":
-      stack.append((out, int(count) if count else 1))
-      out, count = [], ""
+      stack.append((out, size, 1 if count is None else count))
+      out, size, count = [], 0, None
     elif ch == ")":
-      if not stack or count:
+      if not stack or count is not None:
         raise ValueError(f"moves: position {k + 1}: unbalanced ')'" if not stack else
                          f"moves: position {k + 1}: a count before ')'")
-      inner = "".join(out)
-      out, times = stack.pop()
+      inner, inner_size = "".join(out), size
+      out, size, times = stack.pop()
+      size += inner_size * times
+      if size > max_moves:
+        raise too_many(k)
       out.append(inner * times)
     else:
       raise ValueError(f"moves: position {k + 1}: {ch!r} is not a move (l u r d, L U R D for "
                        f"pushes, counts and parentheses)")
   if stack:
     raise ValueError("moves: unbalanced '(' (a group is never closed)")
-  if count:
+  if count is not None:
     raise ValueError(f"moves: the count {count} at the end repeats nothing")
   return "".join(out)
