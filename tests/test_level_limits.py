@@ -27,18 +27,22 @@ SOLID = [{"name": "solid", "type": "bool", "value": True}]
 
 def _refused(fn, match, seconds=5.0, megabytes=100):
   """Runs `fn`, which must raise a ValueError matching `match`, within `seconds` and
-  `megabytes` of traced peak memory; returns the message."""
-  tracemalloc.start()
+  `megabytes` of traced peak memory (None: not traced, as tracing slows code that
+  makes many small Python objects tenfold); returns the message."""
+  if megabytes is not None:
+    tracemalloc.start()
   start = time.perf_counter()
   try:
     with pytest.raises(ValueError, match=match) as info:
       fn()
   finally:
     elapsed = time.perf_counter() - start
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
+    if megabytes is not None:
+      _, peak = tracemalloc.get_traced_memory()
+      tracemalloc.stop()
   assert elapsed < seconds, f"{elapsed:.1f} s"
-  assert peak < megabytes * MB, f"{peak / MB:.0f} MB"
+  if megabytes is not None:
+    assert peak < megabytes * MB, f"{peak / MB:.0f} MB"
   return str(info.value)
 
 
@@ -180,3 +184,70 @@ def test_solutions_expanding_past_max_moves_are_refused():
   assert levels.parse_moves("0(rr)u2()") == "u"
   with pytest.raises(ValueError, match=r"max_moves must be an int >= 0, got -1"):
     levels.parse_moves("r", max_moves=-1)
+
+
+# 9. Bodies: at most max_bodies per level (per collection, in all).
+
+LIMIT = r"more than max_bodies = {} bodies \(levels.MAX_BODIES; raise it with max_bodies=\)"
+
+
+def _checkerboard(size):
+  """A size x size base64-zlib tile layer, every other tile solid: no two merge."""
+  cells = (np.add.outer(np.arange(size), np.arange(size)) % 2 == 0).astype("<u4")
+  return base64.b64encode(zlib.compress(cells.tobytes(), 9)).decode()
+
+
+def test_a_small_map_of_two_million_bodies_is_refused(tmp_path):
+  assert levels.MAX_BODIES == 100_000
+  path = tmp_path / "board.tmj"
+  path.write_text(json.dumps(_tile_map(_checkerboard(2000), 2000, 2000, encoding="base64",
+                                       compression="zlib")))
+  assert path.stat().st_size < 40_000  # 35 KB on disk, 2,000,000 bodies.
+  _refused(lambda: levels.load(path), r"board.tmj, layer 'ground': " + LIMIT.format(100000),
+           seconds=5, megabytes=300)
+  # The keyword moves the limit, exactly: 50 x 50 tiles, every other one solid.
+  data = _tile_map(_checkerboard(50), 50, 50, encoding="base64", compression="zlib")
+  assert levels.load_tiled(data, max_bodies=1250).num_bodies == 1250
+  with pytest.raises(ValueError, match=r"<tiled>, layer 'ground': " + LIMIT.format(1249)):
+    levels.load_tiled(data, max_bodies=1249)
+  # Objects count too.
+  data = _tile_map([0] * 4, 2, 2)
+  data["layers"].append({"type": "objectgroup", "name": "crates", "objects": [
+      {"id": k, "x": 0, "y": 0, "width": 8, "height": 8} for k in range(3)]})
+  assert levels.load_tiled(data, max_bodies=3).num_bodies == 3
+  with pytest.raises(ValueError, match=r"<tiled>, layer 'crates', object 2: " + LIMIT.format(2)):
+    levels.load_tiled(data, max_bodies=2)
+
+
+def test_ascii_maps_and_collections_count_their_bodies(tmp_path):
+  boxes = "#" + "$ " * 2048 + "#\n"
+  path = tmp_path / "boxes.txt"
+  path.write_text(boxes * 60)  # 245 KB: 122,880 boxes.
+  _refused(lambda: levels.load(path), r"boxes.txt: " + LIMIT.format(100000), seconds=5,
+           megabytes=300)
+  room = "#####\n#@$.#\n#####\n"  # 7 bodies.
+  assert levels.parse_ascii(room, max_bodies=7).num_bodies == 7
+  with pytest.raises(ValueError, match=r"<ascii>: " + LIMIT.format(6)):
+    levels.parse_ascii(room, max_bodies=6)
+  # A collection's limit is on all its levels together.
+  text = "\n".join([room] * 3)
+  assert len(levels.parse_xsb_collection(text, max_bodies=21)) == 3
+  with pytest.raises(ValueError, match=r"<xsb>: its levels 1 to 3 have " + LIMIT.format(20)):
+    levels.parse_xsb_collection(text, max_bodies=20)
+  (tmp_path / "three.xsb").write_text(text)
+  assert len(levels.load_collection(tmp_path / "three.xsb", max_bodies=21)) == 3
+  with pytest.raises(ValueError, match=r"three.xsb: its levels 1 to 3 have " + LIMIT.format(20)):
+    levels.load_collection(tmp_path / "three.xsb", max_bodies=20)
+  # 8 MB of tiny levels: their boxes, goals and players alone pass the limit, counted
+  # over the whole text before any level is parsed.
+  hostile = "\n".join([room] * 420_000)
+  _refused(lambda: levels.parse_xsb_collection(hostile),
+           r"<xsb>: its 420000 levels have at least 1680000 bodies, " + LIMIT.format(100000),
+           megabytes=None)
+  # Walls count as they are parsed: 99 levels of 1,004 bodies pass, the 100th does not.
+  big = "#" * 1002 + "\n" + ("#" + "$ " * 500 + "#\n") * 2 + "#" * 1002 + "\n"
+  _refused(lambda: levels.parse_xsb_collection("\n".join([big] * 100), max_bodies=100_200),
+           r"<xsb>: its levels 1 to 100 have " + LIMIT.format(100200), megabytes=None)
+  for bad in (-1, 1.5, True):
+    with pytest.raises(ValueError, match=r"max_bodies must be an int >= 0"):
+      levels.parse_ascii(room, max_bodies=bad)

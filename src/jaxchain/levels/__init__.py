@@ -29,18 +29,18 @@ bodies.
 from jaxchain.levels.ascii import LEGEND, parse_ascii
 from jaxchain.levels.files import MAX_FILE_BYTES, names
 from jaxchain.levels.level import (ALL, BOX, BOX_TILE, CATEGORIES, FLAG_TILE, GOAL_TILE,
-                                   HAZARD_TILE, HEAVY_TILE, PLATFORM_TILE, PLAYER, PLAYER_TILE,
-                                   SENSOR, SLAB, SOLID, WALL, Level, Tile, rectangles)
+                                   HAZARD_TILE, HEAVY_TILE, MAX_BODIES, MAX_TILES, PLATFORM_TILE,
+                                   PLAYER, PLAYER_TILE, SENSOR, SLAB, SOLID, WALL, Level, Tile,
+                                   rectangles)
 from jaxchain.levels.loader import load
-from jaxchain.levels.tiled import (DEFAULT_MASS, FLIP_BITS, GID_MASK, MAX_TILES, POINT_HALF,
-                                   load_tiled)
+from jaxchain.levels.tiled import DEFAULT_MASS, FLIP_BITS, GID_MASK, POINT_HALF, load_tiled
 from jaxchain.levels.tmx import tmx_to_json
 from jaxchain.levels.xsb import MAX_MOVES, load_collection, parse_moves, parse_xsb_collection
 
 __all__ = [
     "ALL", "BOX", "BOX_TILE", "CATEGORIES", "DEFAULT_MASS", "FLAG_TILE", "FLIP_BITS", "GID_MASK",
-    "GOAL_TILE", "HAZARD_TILE", "HEAVY_TILE", "LEGEND", "Level", "MAX_FILE_BYTES", "MAX_MOVES", "MAX_TILES", "PLATFORM_TILE",
-    "PLAYER", "PLAYER_TILE", "POINT_HALF", "SENSOR", "SLAB", "SOLID", "Tile", "WALL", "load",
-    "load_collection", "load_tiled", "names", "parse_ascii", "parse_moves",
-    "parse_xsb_collection", "rectangles", "tmx_to_json",
+    "GOAL_TILE", "HAZARD_TILE", "HEAVY_TILE", "LEGEND", "Level", "MAX_BODIES", "MAX_FILE_BYTES",
+    "MAX_MOVES", "MAX_TILES", "PLATFORM_TILE", "PLAYER", "PLAYER_TILE", "POINT_HALF", "SENSOR",
+    "SLAB", "SOLID", "Tile", "WALL", "load", "load_collection", "load_tiled", "names",
+    "parse_ascii", "parse_moves", "parse_xsb_collection", "rectangles", "tmx_to_json",
 ]

@@ -9,9 +9,10 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from jaxchain.levels.level import (BOX_TILE, FLAG_TILE, GOAL_TILE, HAZARD_TILE,
-                                   HEAVY_TILE, PLATFORM_TILE, PLAYER_TILE, WALL, Level, Tile,
-                                   _Body, _level, rectangles)
+from jaxchain.levels.level import (BOX_TILE, FLAG_TILE, GOAL_TILE, HAZARD_TILE, HEAVY_TILE,
+                                   MAX_BODIES, MAX_TILES, PLATFORM_TILE, PLAYER_TILE, WALL, Level,
+                                   Tile, _Body, _label_rectangles, _level, _max_bodies,
+                                   _too_many)
 
 
 def _kinematic(vel):
@@ -53,7 +54,8 @@ def _legend(legend) -> dict[str, tuple[Tile, ...]]:
 
 
 def parse_ascii(text: str, legend=None, *, name: str = "", gravity=(0.0, -9.81),
-                strict: bool = False, source: str | None = None) -> Level:
+                strict: bool = False, source: str | None = None,
+                max_bodies: int = MAX_BODIES) -> Level:
   """Reads an ASCII map: Sokoban XSB as it is, plus platformer characters.
 
   Characters (`LEGEND`; `legend` adds or overrides entries):
@@ -95,13 +97,16 @@ def parse_ascii(text: str, legend=None, *, name: str = "", gravity=(0.0, -9.81),
       Sokoban level.
     strict: require a rectangular map.
     source: what errors call the text (default `name`, or "<ascii>").
+    max_bodies: the most bodies the level may have (`MAX_BODIES`; counted before
+      they are built).
 
   Returns:
     A `Level` whose bounds are `(0, 0, width, height)`.
 
   Raises:
     ValueError: naming the line and column of an unknown character or a tab, the
-      line of a ragged row, or an empty map.
+      line of a ragged row, or an empty map; for a map of more than `MAX_TILES`
+      cells (width x height), or more than `max_bodies` bodies.
 
   Examples:
     >>> from jaxchain import levels
@@ -121,6 +126,7 @@ def parse_ascii(text: str, legend=None, *, name: str = "", gravity=(0.0, -9.81),
   """
   source = source or name or "<ascii>"
   table = _legend(legend)
+  max_bodies = _max_bodies(max_bodies)
   text = text.removeprefix("\ufeff")  # A byte-order mark (a file read as "utf-8").
   numbered = [(k + 1, line.rstrip("\r")) for k, line in enumerate(text.split("\n"))]
   numbered = [(k, line) for k, line in numbered if not (line.startswith(";") and ";" not in table)]
@@ -132,65 +138,87 @@ def parse_ascii(text: str, legend=None, *, name: str = "", gravity=(0.0, -9.81),
   numbered.reverse()
   if not numbered:
     raise ValueError(f"{source}: no map rows (the text is empty, blank or only ';' comments)")
-  return _parse_rows(numbered, table, name, gravity, strict, source)
+  return _parse_rows(numbered, table, name, gravity, strict, source, max_bodies)
 
 
 def _parse_rows(numbered: list[tuple[int, str]], table: dict, name: str, gravity, strict: bool,
-                source: str) -> Level:
+                source: str, max_bodies: int, too_many=None) -> Level:
   """The level of a map's rows `(line number, text)`, top to bottom (at least one):
   `parse_ascii` once the comments and blank edges are gone (also the rows of one map
-  of a collection, numbered as in the whole text)."""
-  grid = []
-  for k, line in numbered:
-    for c, ch in enumerate(line):
-      if ch not in table:
-        if ch == "\t":
-          raise ValueError(f"{source}: line {k}, column {c + 1}: tab character (a tab has no "
-                           f"width on a map: use spaces)")
-        raise ValueError(f"{source}: line {k}, column {c + 1}: unknown character {ch!r} (known: "
-                         f"{''.join(sorted(table))!r}; add it with legend=)")
-    grid.append([table[ch] for ch in line])
-  width = max(len(row) for row in grid)
-  longest = next(k for (k, _), row in zip(numbered, grid) if len(row) == width)
-  for (k, line), row in zip(numbered, grid):
-    if len(row) == width:
+  of a collection, numbered as in the whole text). Its bodies are counted before they
+  are built: more than `max_bodies` raise `too_many()` (default: naming `source`)."""
+  lines = [line for _, line in numbered]
+  present = set().union(*map(set, lines))
+  unknown = present - table.keys()
+  if unknown:  # The first one, by line and column.
+    k, c, ch = min((k, line.index(ch), ch) for (k, line) in numbered for ch in unknown
+                   if ch in line)
+    if ch == "\t":
+      raise ValueError(f"{source}: line {k}, column {c + 1}: tab character (a tab has no "
+                       f"width on a map: use spaces)")
+    raise ValueError(f"{source}: line {k}, column {c + 1}: unknown character {ch!r} (known: "
+                     f"{''.join(sorted(table))!r}; add it with legend=)")
+  lengths = np.array([len(line) for line in lines])
+  width, height = int(lengths.max()), len(lines)
+  longest = numbered[int(np.argmax(lengths))][0]
+  for (k, line) in numbered:
+    if len(line) == width:
       continue
     if strict:
-      raise ValueError(f"{source}: line {k} is ragged: {len(row)} columns, but line {longest} "
+      raise ValueError(f"{source}: line {k} is ragged: {len(line)} columns, but line {longest} "
                        f"has {width} (strict=True needs a rectangular map)")
-    if not (row and any(t.merge == "rect" for t in row[-1])):
+    if not (line and any(t.merge == "rect" for t in table[line[-1]])):
       raise ValueError(
-          f"{source}: line {k} is ragged: {len(row)} columns, but line {longest} has {width}, "
+          f"{source}: line {k} is ragged: {len(line)} columns, but line {longest} has {width}, "
           f"and it does not end in a wall, so the missing cells could be inside the level (end "
           f"the row with a wall, or write the floor out with spaces or '-')")
-    row.extend([()] * (width - len(row)))
-  return _level(name, _ascii_bodies(grid), (0.0, 0.0, float(width), float(len(grid))), gravity)
+  if width * height > MAX_TILES:
+    raise ValueError(f"{source}: the map is {width}x{height} = {width * height} cells, more than "
+                     f"the limit levels.MAX_TILES = {MAX_TILES} (2048x2048)")
+  # Each cell's character code (-1: padding of a short row, floor).
+  codes = np.full((height, width), -1, np.int64)
+  flat = np.frombuffer("".join(lines).encode("utf-32-le"), "<u4")
+  codes[np.arange(width)[None, :] < lengths[:, None]] = flat
+  too_many = too_many or (lambda: _too_many(source, max_bodies))
+  return _level(name, _ascii_bodies(codes, present, table, max_bodies, too_many),
+                (0.0, 0.0, float(width), float(height)), gravity)
 
 
-def _ascii_bodies(grid: list[list[tuple[Tile, ...]]]) -> list[_Body]:
-  """Bodies of a rectangular grid of tile tuples (row 0 at the top)."""
-  height = len(grid)
+def _ascii_bodies(codes: np.ndarray, present: set[str], table: dict, max_bodies: int,
+                  too_many) -> list[_Body]:
+  """The bodies of a `[rows, cols]` grid of character codes (row 0 at the top; the
+  characters `present`), counted (cells of unmerged tiles, rectangles of merged ones)
+  before any is built."""
+  height = codes.shape[0]
+  cells = {}  # Tile -> [rows, cols] bool, its cells (a tile may serve several characters).
+  for ch in sorted(present):
+    at = None
+    for tile in table[ch]:
+      at = codes == ord(ch) if at is None else at
+      cells[tile] = cells[tile] | at if tile in cells else at
+  placed, count = [], 0  # (tile, [k, 4] rectangles (r0, c0, r1, c1)), and their number.
+  for tile, at in cells.items():
+    if tile.merge == "none":
+      r, c = np.nonzero(at)
+      rects = np.stack([r, c, r, c], axis=-1)
+    else:
+      rects = _label_rectangles(np.where(at, 0, -1), np.array([tile.merge == "rect"]),
+                                max_bodies - count)
+      if rects is None:
+        raise too_many()
+      rects = rects[:, :4]
+    count += len(rects)
+    if count > max_bodies:
+      raise too_many()
+    placed.append((tile, rects))
   bodies = []
-
-  def body(tile: Tile, r0, c0, r1, c1):
-    # The union of the run's cell rectangles (exactly the tile's own for one cell).
-    slot = grid[r0][c0].index(tile)
-    pos = ((c0 + c1 + 1) / 2 + tile.offset[0], height - (r0 + r1 + 1) / 2 + tile.offset[1])
-    half = ((c1 - c0) / 2 + tile.half[0], (r1 - r0) / 2 + tile.half[1])
-    bodies.append(_Body((r0, c0, slot), pos, half, tile.mass, tile.vel, tile.friction, tile.one_way,
-                        tile.sensor, tile.category, tile.mask, tile.tags))
-
-  merged = {}
-  for r, row in enumerate(grid):
-    for c, tiles in enumerate(row):
-      for tile in tiles:
-        if tile.merge == "none":
-          body(tile, r, c, r, c)
-        else:
-          merged.setdefault(tile, []).append((r, c))
-  for tile, cells in merged.items():
-    mask = np.zeros((height, len(grid[0])), bool)
-    mask[tuple(np.array(cells).T)] = True
-    for rect in rectangles(mask, vertical=tile.merge == "rect"):
-      body(tile, *rect)
+  for tile, rects in placed:
+    for r0, c0, r1, c1 in rects.tolist():
+      # The union of the run's cell rectangles (exactly the tile's own for one cell); the
+      # slot orders the bodies of one cell as its legend entry lists them.
+      slot = table[chr(codes[r0, c0])].index(tile)
+      pos = ((c0 + c1 + 1) / 2 + tile.offset[0], height - (r0 + r1 + 1) / 2 + tile.offset[1])
+      half = ((c1 - c0) / 2 + tile.half[0], (r1 - r0) / 2 + tile.half[1])
+      bodies.append(_Body((r0, c0, slot), pos, half, tile.mass, tile.vel, tile.friction,
+                          tile.one_way, tile.sensor, tile.category, tile.mask, tile.tags))
   return bodies

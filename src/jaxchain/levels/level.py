@@ -29,6 +29,12 @@ CATEGORIES = types.MappingProxyType(
 SLAB = 0.25  # thickness of a one-way platform, in cells: a slab at the top of its cell
 _MERGES = ("none", "row", "rect")
 _U32 = 1 << 32
+# The most bodies a loader makes of one level (of one collection, in all), unless its
+# `max_bodies` keyword says otherwise: checked before the bodies are built.
+MAX_BODIES = 100_000
+# The most cells a map may have (width x height, 2048 x 2048; Tiled: tiles of a layer, 4
+# bytes each, and compressed tile data is inflated only up to the layer's size).
+MAX_TILES = 1 << 22
 
 
 @dataclasses.dataclass(frozen=True)
@@ -250,6 +256,19 @@ class _Body:
   tags: tuple[str, ...]
 
 
+def _max_bodies(value) -> int:
+  """A `max_bodies` keyword, checked."""
+  if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+    raise ValueError(f"max_bodies must be an int >= 0, got {value!r}")
+  return int(value)
+
+
+def _too_many(where, max_bodies: int, sep: str = ": ") -> ValueError:
+  """The error of a level (or collection) past its body limit; `where` names it."""
+  return ValueError(f"{where}{sep}more than max_bodies = {max_bodies} bodies "
+                    f"(levels.MAX_BODIES; raise it with max_bodies=)")
+
+
 def _level(name, bodies: list[_Body], bounds, gravity) -> Level:
   bodies = sorted(bodies, key=lambda b: b.key)
   n = len(bodies)
@@ -291,16 +310,58 @@ def rectangles(cells, vertical: bool = True) -> list[tuple[int, int, int, int]]:
   cells = np.asarray(cells, bool)
   if cells.ndim != 2:
     raise ValueError(f"rectangles: expected a 2-D grid, got shape {cells.shape}")
-  done, open_ = [], {}
-  for r, row in enumerate(cells):
-    edges = np.diff(np.concatenate([[0], row.astype(np.int8), [0]]))
-    runs = zip(np.flatnonzero(edges == 1).tolist(), (np.flatnonzero(edges == -1) - 1).tolist())
-    grown = {}
-    for c0, c1 in runs:
-      rect = open_.pop((c0, c1)) if vertical and (c0, c1) in open_ else [r, c0, r, c1]
-      rect[2] = r
-      grown[(c0, c1)] = rect
-    done.extend(open_.values())
-    open_ = grown
-  done.extend(open_.values())
-  return sorted(tuple(rect) for rect in done)
+  rects = _label_rectangles(np.where(cells, 0, -1), np.asarray([bool(vertical)]))
+  return [tuple(r) for r in rects[:, :4].tolist()]
+
+
+def _label_rectangles(labels: np.ndarray, vertical: np.ndarray, limit: int | None = None
+                      ) -> np.ndarray | None:
+  """`rectangles` of every label at once, vectorised (no Python loop over rows or runs).
+
+  Args:
+    labels: `[rows, cols]` int grid, the cell's label `>= 0`, or -1 for none.
+    vertical: `[labels]` bool, whether a label's runs stack over consecutive rows.
+    limit: optional; more rectangles than this return None, found before they are
+      built (a body limit refuses a hostile map at the cost of a few passes over it).
+
+  Returns:
+    `[k, 5]` int64 rows `(r0, c0, r1, c1, label)`, sorted by `(r0, c0)`: for each
+    label what `rectangles` gives for its cells (or None, past `limit`).
+  """
+  labels = np.asarray(labels)
+  vertical = np.asarray(vertical, bool)
+  rows, cols = labels.shape
+  filled = labels >= 0
+  starts, ends = filled.copy(), filled.copy()  # A run starts (ends) where its label does.
+  starts[:, 1:] &= labels[:, 1:] != labels[:, :-1]
+  ends[:, :-1] &= labels[:, :-1] != labels[:, 1:]
+  r, c0 = np.nonzero(starts)  # Row-major, like the ends: the k-th start and end pair up.
+  c1 = np.nonzero(ends)[1]
+  if not len(r):
+    return np.zeros((0, 5), np.int64)
+  r, c0, c1 = r.astype(np.int64), c0.astype(np.int64), c1.astype(np.int64)
+  lab = labels[r, c0].astype(np.int64)
+  if limit is not None and len(r) > limit:
+    # Count first, without sorting: a run continues the rectangle above it when the
+    # row above holds the same run (the same label over its columns, by a running
+    # count of the cells that differ from the one above, starting and ending there).
+    differs = np.ones((rows, cols), np.int64)
+    differs[1:] = labels[1:] != labels[:-1]
+    seen = np.cumsum(differs, axis=1)
+    inside = seen[r, c1] - np.where(c0 > 0, seen[r, np.maximum(c0 - 1, 0)], 0)
+    above = np.maximum(r - 1, 0)
+    cont = (r > 0) & (inside == 0) & starts[above, c0] & ends[above, c1] & vertical[lab]
+    if len(r) - np.count_nonzero(cont) > limit:
+      return None
+  # Stack: sorted by columns (stable, so rows stay in order: a row holds one run of
+  # them), a rectangle runs from a run that does not continue the one before it (the
+  # same columns and label, one row up, where the label stacks) to the last that does.
+  order = np.argsort(c0 * np.int64(cols) + c1, kind="stable")
+  r, c0, c1, lab = r[order], c0[order], c1[order], lab[order]
+  cont = np.zeros(len(r), bool)
+  cont[1:] = ((lab[1:] == lab[:-1]) & (c0[1:] == c0[:-1]) & (c1[1:] == c1[:-1])
+              & (r[1:] == r[:-1] + 1) & vertical[lab[1:]])
+  first = np.flatnonzero(~cont)
+  last = np.append(first[1:] - 1, len(r) - 1)
+  rects = np.stack([r[first], c0[first], r[last], c1[first], lab[first]], axis=-1)
+  return rects[np.argsort(rects[:, 0] * np.int64(cols) + rects[:, 1], kind="stable")]

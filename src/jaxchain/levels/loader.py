@@ -7,13 +7,14 @@ import json
 
 from jaxchain.levels.ascii import _legend, parse_ascii
 from jaxchain.levels.files import _SUFFIXES, _level_file, _parent, _read_text
-from jaxchain.levels.level import Level
+from jaxchain.levels.level import MAX_BODIES, Level
 from jaxchain.levels.tiled import load_tiled
 from jaxchain.levels.tmx import tmx_to_json
 from jaxchain.levels.xsb import _is_map_row
 
 
-def load(path, legend=None, *, strict: bool = False, gravity=None) -> Level:
+def load(path, legend=None, *, strict: bool = False, gravity=None,
+         max_bodies: int = MAX_BODIES) -> Level:
   """Loads a level file by extension, or a shipped level by name (`names()`).
 
   Formats:
@@ -76,6 +77,8 @@ def load(path, legend=None, *, strict: bool = False, gravity=None) -> Level:
     legend: extra characters for ASCII maps (see `parse_ascii`).
     strict: ASCII maps must be rectangular (see `parse_ascii`).
     gravity: the level's gravity, overriding the format's default.
+    max_bodies: the most bodies the level may have (`MAX_BODIES`; counted before
+      they are built, so a small file that would make millions is refused fast).
 
   Returns:
     The `Level`, named after the file's stem (or the map property `name`).
@@ -104,13 +107,15 @@ def load(path, legend=None, *, strict: bool = False, gravity=None) -> Level:
   kind = _SUFFIXES[suffix]
   if kind == "tmx":
     data = tmx_to_json(text, source=file.name)
-    return load_tiled(data, name=stem, base=_parent(file), gravity=gravity, source=file.name)
+    return load_tiled(data, name=stem, base=_parent(file), gravity=gravity, source=file.name,
+                      max_bodies=max_bodies)
   if kind == "tiled":
     try:
       data = json.loads(text)
     except json.JSONDecodeError as e:
       raise ValueError(f"{file.name}: not valid JSON ({e})") from None
-    return load_tiled(data, name=stem, base=_parent(file), gravity=gravity, source=file.name)
+    return load_tiled(data, name=stem, base=_parent(file), gravity=gravity, source=file.name,
+                      max_bodies=max_bodies)
   if gravity is None:
     gravity = (0.0, 0.0) if kind == "xsb" else (0.0, -9.81)
   if kind == "xsb":
@@ -121,4 +126,5 @@ def load(path, legend=None, *, strict: bool = False, gravity=None) -> Level:
       raise ValueError(f"{file.name}: holds {runs} maps separated by blank or text lines (a "
                        f"collection): load them with levels.load_collection(path), one Level "
                        f"each")
-  return parse_ascii(text, legend, name=stem, gravity=gravity, strict=strict, source=file.name)
+  return parse_ascii(text, legend, name=stem, gravity=gravity, strict=strict, source=file.name,
+                     max_bodies=max_bodies)

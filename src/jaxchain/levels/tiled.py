@@ -19,8 +19,9 @@ from collections.abc import Mapping
 import numpy as np
 
 from jaxchain.levels.files import _read_text, _Where
-from jaxchain.levels.level import (ALL, BOX, BOX_TILE, CATEGORIES, PLAYER, PLAYER_TILE, SENSOR,
-                                   SLAB, SOLID, Level, _Body, _level, _U32, rectangles)
+from jaxchain.levels.level import (ALL, BOX, BOX_TILE, CATEGORIES, MAX_BODIES, MAX_TILES, PLAYER,
+                                   PLAYER_TILE, SENSOR, SLAB, SOLID, Level, _Body,
+                                   _label_rectangles, _level, _max_bodies, _too_many, _U32)
 from jaxchain.levels.tmx import _xml_int, _xml_object, _xml_value
 
 FLIP_BITS = 0xF0000000  # Tiled GID flags: flipped horizontally, vertically, diagonally; hex 120
@@ -34,9 +35,6 @@ _MOVABLE_TAGS = ("player", "box")
 # tagged "player" or "box": those are spawns, bodies of the ASCII `@` and `$` sizes).
 POINT_HALF = 0.05
 _F32_MAX = float(np.finfo(np.float32).max)
-# The most tiles a map may have (width x height; 2048 x 2048): a tile layer's GIDs take
-# 4 bytes a tile, and compressed tile data is inflated only up to the layer's size.
-MAX_TILES = 1 << 22
 
 
 def _number(value, what: str = "") -> float:
@@ -394,13 +392,14 @@ class _Context:
   tiles: dict
   base: object
   firstgids: dict  # normalised external tileset path -> firstgid
+  max_bodies: int
   bodies: list = dataclasses.field(default_factory=list)
   decorative: list = dataclasses.field(default_factory=list)  # tile layers with no solid tile
   solid_seen: bool = False  # some layer, group or tile has a `solid` property
 
 
 def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
-               source: str | None = None) -> Level:
+               source: str | None = None, max_bodies: int = MAX_BODIES) -> Level:
   """Reads a Tiled map: its JSON object (`json.load`), or a TMX map turned into the
   same structure by `tmx_to_json`; see `load` for the rules.
 
@@ -412,6 +411,8 @@ def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
     gravity: the level's gravity; default the map property `gravity` ("gx,gy"),
       else `(0, -9.81)`.
     source: what errors call the map (default `name`, or "<tiled>").
+    max_bodies: the most bodies the level may have (`MAX_BODIES`; a tile layer's
+      rectangles are counted before they are built).
 
   Warns:
     UserWarning: when tile layers hold tiles but no layer, group or tile of the map
@@ -458,7 +459,7 @@ def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
       if isinstance(ts.get("source"), str) and isinstance(ts.get("firstgid"), int):
         firstgids[_normpath(base.joinpath(ts["source"]))] = ts["firstgid"]
   ctx = _Context(where, (width, height, tw, th), units, tiles, base, firstgids,
-                 solid_seen=any("solid" in props for props, _ in tiles.values()))
+                 _max_bodies(max_bodies), solid_seen=any("solid" in props for props, _ in tiles.values()))
   layers = data.get("layers", [])
   if not isinstance(layers, list):
     raise where.error("'layers' must be an array")
@@ -514,34 +515,52 @@ def _walk(layers, inherited, offset, prefix, ctx: _Context):
 
 def _tile_layer(layer, props, offset, lname, where, ctx: _Context):
   """A tile layer's solid tiles, merged into rectangles. A tile is solid when its
-  resolved `solid` (the tile's own property over its layer's and groups') is true."""
+  resolved `solid` (the tile's own property over its layer's and groups') is true.
+  Vectorised over the tiles: one spec (properties and tags) per tile that has data in
+  its tileset, one for all others; the rectangles are counted before bodies are built."""
   width, height, tw, th = ctx.grid
   gids = _gids(layer, width, height, where)
-  specs = {}  # spec -> bool grid of its cells
   layer_tags = (lname,) if lname else ()
-  for gid in np.unique(gids[gids > 0]).tolist():
-    tile_props, tile_tags = ctx.tiles.get(gid, ({}, ()))
+  specs, index = [], {}  # The solid specs, and spec -> its label.
+
+  def label(tile_props, tile_tags) -> int:
     resolved = {**props, **{k: v for k, v in tile_props.items() if k not in _MOTION}}
     if not resolved.get("solid", False):
-      continue
+      return -1
     spec = _spec(resolved, layer_tags + tile_tags)
-    specs.setdefault(spec, np.zeros((height, width), bool))
-    specs[spec] |= gids == gid
-  if not specs and np.any(gids > 0):
-    ctx.decorative.append(lname)
+    if spec not in index:
+      index[spec] = len(specs)
+      specs.append(spec)
+    return index[spec]
+
+  used = gids > 0
+  labels = np.where(used, label({}, ()), -1)
+  keys = np.intersect1d(np.fromiter(ctx.tiles, np.int64, len(ctx.tiles)),
+                        np.unique(gids[used]).astype(np.int64))
+  if len(keys):  # The tiles with data in the layer: their own labels, for every cell at once.
+    values = np.asarray([label(*ctx.tiles[g]) for g in keys.tolist()], np.int64)
+    at = np.minimum(np.searchsorted(keys, gids), len(keys) - 1)
+    labels = np.where(keys[at] == gids, values[at], labels)
+  if not np.any(labels >= 0):
+    if np.any(used):
+      ctx.decorative.append(lname)
+    return
+  room = ctx.max_bodies - len(ctx.bodies)
+  rects = _label_rectangles(labels, np.asarray([not spec[0] for spec in specs]), room)
+  if rects is None or len(rects) > room:
+    raise _too_many(where, ctx.max_bodies)
   order = len(ctx.bodies)
-  for spec, cells in specs.items():
-    one_way, sensor, friction, category, mask, tags = spec
-    for r0, c0, r1, c1 in rectangles(cells, vertical=not one_way):
-      x0, x1 = c0 * tw + offset[0], (c1 + 1) * tw + offset[0]
-      y0, y1 = r0 * th + offset[1], (r1 + 1) * th + offset[1]
-      if one_way:
-        y1 = y0 + SLAB * th
-      pos, half = ctx.units.box(x0, y0, x1, y1)
-      _check_box(pos, half, _Where(where.source, where.layer, f"tiles from row {r0}, column {c0}"),
-                 f"{(c1 - c0 + 1) * tw}x{(r1 - r0 + 1) * th} px")
-      ctx.bodies.append(_Body((order, r0, c0), pos, half, math.inf, (0.0, 0.0), friction, one_way,
-                              sensor, category, mask, tags))
+  for r0, c0, r1, c1, lab in rects.tolist():
+    one_way, sensor, friction, category, mask, tags = specs[lab]
+    x0, x1 = c0 * tw + offset[0], (c1 + 1) * tw + offset[0]
+    y0, y1 = r0 * th + offset[1], (r1 + 1) * th + offset[1]
+    if one_way:
+      y1 = y0 + SLAB * th
+    pos, half = ctx.units.box(x0, y0, x1, y1)
+    _check_box(pos, half, _Where(where.source, where.layer, f"tiles from row {r0}, column {c0}"),
+               f"{(c1 - c0 + 1) * tw}x{(r1 - r0 + 1) * th} px")
+    ctx.bodies.append(_Body((order, r0, c0), pos, half, math.inf, (0.0, 0.0), friction, one_way,
+                            sensor, category, mask, tags))
 
 
 # Tiled's rotation (degrees clockwise on screen, y down) of a multiple of 90 degrees:
@@ -624,6 +643,8 @@ def _object_layer(layer, props, offset, lname, where, ctx: _Context):
     one_way, sensor, friction, category, mask, tags = _spec(resolved, tags)
     movable = not sensor and any(t in tags for t in _MOVABLE_TAGS)
     mass = resolved.get("mass", DEFAULT_MASS if movable else math.inf)
+    if len(ctx.bodies) >= ctx.max_bodies:
+      raise _too_many(owhere, ctx.max_bodies)
     ctx.bodies.append(_Body((len(ctx.bodies),), pos, half, mass, vel, friction, one_way, sensor,
                             category, mask, tags))
 

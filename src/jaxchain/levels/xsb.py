@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from jaxchain.levels.ascii import _legend, _parse_rows
 from jaxchain.levels.files import _level_file, _read_text
-from jaxchain.levels.level import Level
+from jaxchain.levels.level import MAX_BODIES, Level, _max_bodies, _too_many
 
 
 def _is_map_row(line: str, table) -> bool:
@@ -18,7 +18,8 @@ def _is_map_row(line: str, table) -> bool:
 
 
 def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0, 0.0),
-                         strict: bool = False, source: str | None = None) -> list[Level]:
+                         strict: bool = False, source: str | None = None,
+                         max_bodies: int = MAX_BODIES) -> list[Level]:
   """Reads a Sokoban collection: several XSB levels in one text, as a list of `Level`s.
 
   The text is read line by line. A level is a run of consecutive map lines (lines
@@ -41,13 +42,15 @@ def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0
     gravity: every level's gravity (default `(0, 0)`: Sokoban is seen from above).
     strict: every map must be rectangular.
     source: what errors call the text (default `name`, or "<xsb>").
+    max_bodies: the most bodies of all the levels together (`MAX_BODIES`), so that a
+      huge collection is refused as soon as its levels pass it.
 
   Returns:
     The levels in file order, each named by its title.
 
   Raises:
     ValueError: when the text holds no level, or a map is malformed (naming the
-      line in the whole text).
+      line in the whole text), or the levels have more than `max_bodies` bodies.
 
   Examples:
     >>> from jaxchain import levels
@@ -69,6 +72,7 @@ def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0
   """
   source = source or name or "<xsb>"
   table = _legend(legend)
+  limit = _max_bodies(max_bodies)
   text = text.removeprefix("\ufeff")  # A byte-order mark (a file read as "utf-8").
   lines = [line.rstrip("\r") for line in text.split("\n")]
   kinds, in_comment = [], False
@@ -92,6 +96,15 @@ def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0
     k += 1
   if not maps:
     raise ValueError(f"{source}: no level (no line starting with a wall '#')")
+  # A fast bound first, over the whole text: every cell of an unmerged tile is a body,
+  # and every map has its '#' wall; past `max_bodies`, no level is parsed.
+  rows = "\n".join(lines[k] for start, end in maps for k in range(start, end + 1))
+  least = len(maps) * bool(table.get("#")) + sum(
+      rows.count(ch) * sum(t.merge == "none" for t in tiles) for ch, tiles in table.items()
+      if any(t.merge == "none" for t in tiles))
+  if least > limit:
+    raise _too_many(f"{source}: its {len(maps)} levels have at least {least} bodies,", limit,
+                    " ")
 
   def paragraph_after(end):
     out, k = [], end + 1
@@ -112,7 +125,7 @@ def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0
         return line
     return ""
 
-  out, prev_end = [], -1
+  out, prev_end, used = [], -1, 0
   for number, (start, end) in enumerate(maps, 1):
     after, _ = paragraph_after(end)
     # The last paragraph of text before the map (after the previous map's own).
@@ -128,11 +141,14 @@ def parse_xsb_collection(text: str, legend=None, *, name: str = "", gravity=(0.0
     prev_end = end
     title = title_of(before, after) or f"{name or 'level'} {number}"
     rows = [(k + 1, lines[k]) for k in range(start, end + 1)]  # Numbered in the whole text.
-    out.append(_parse_rows(rows, table, title, gravity, strict, source))
+    too_many = lambda n=number: _too_many(f"{source}: its levels 1 to {n} have", limit, " ")
+    out.append(_parse_rows(rows, table, title, gravity, strict, source, limit - used, too_many))
+    used += out[-1].num_bodies
   return out
 
 
-def load_collection(path, legend=None, *, strict: bool = False, gravity=None) -> list[Level]:
+def load_collection(path, legend=None, *, strict: bool = False, gravity=None,
+                    max_bodies: int = MAX_BODIES) -> list[Level]:
   """Loads a Sokoban collection file (several XSB levels; `parse_xsb_collection`).
 
   Args:
@@ -140,6 +156,7 @@ def load_collection(path, legend=None, *, strict: bool = False, gravity=None) ->
     legend: extra characters (see `parse_ascii`).
     strict: every map must be rectangular.
     gravity: every level's gravity (default `(0, 0)`).
+    max_bodies: the most bodies of all the levels together (`MAX_BODIES`).
 
   Returns:
     The levels in file order, each named by its title.
@@ -156,7 +173,8 @@ def load_collection(path, legend=None, *, strict: bool = False, gravity=None) ->
     raise ValueError(f"{file.name}: {e}") from None
   stem = file.name.rsplit(".", 1)[0]
   return parse_xsb_collection(text, legend, name=stem, strict=strict, source=file.name,
-                              gravity=(0.0, 0.0) if gravity is None else gravity)
+                              gravity=(0.0, 0.0) if gravity is None else gravity,
+                              max_bodies=max_bodies)
 
 
 _MOVE_LETTERS = frozenset("lurdLURD")
