@@ -251,3 +251,39 @@ def test_ascii_maps_and_collections_count_their_bodies(tmp_path):
   for bad in (-1, 1.5, True):
     with pytest.raises(ValueError, match=r"max_bodies must be an int >= 0"):
       levels.parse_ascii(room, max_bodies=bad)
+
+
+# 10. Group layers: at most MAX_GROUP_DEPTH deep.
+
+
+def _nested(depth, fmt):
+  """A map whose object layer sits inside `depth` group layers, as .tmj or .tmx text."""
+  if fmt == "tmj":
+    head = ('{"orientation": "orthogonal", "width": 2, "height": 1, "tilewidth": 16, '
+            '"tileheight": 16, "tilesets": [], "layers": [')
+    inner = ('{"type": "objectgroup", "name": "o", "objects": [{"id": 1, "x": 0, "y": 0, '
+             '"width": 16, "height": 16}]}')
+    return head + '{"type": "group", "name": "g", "layers": [' * depth + inner + "]}" * depth + "]}"
+  return ('<map orientation="orthogonal" width="2" height="1" tilewidth="16" tileheight="16">'
+          + '<group name="g">' * depth + '<objectgroup name="o"><object id="1" x="0" y="0" '
+          'width="16" height="16"/></objectgroup>' + "</group>" * depth + "</map>")
+
+
+@pytest.mark.parametrize("fmt", ["tmj", "tmx"])
+def test_group_layers_nested_too_deep_are_refused(tmp_path, fmt):
+  assert levels.MAX_GROUP_DEPTH == 64
+  path = tmp_path / f"ok.{fmt}"
+  path.write_text(_nested(64, fmt))
+  lv = levels.load(path)
+  assert lv.num_bodies == 1 and lv.tags["/".join(["g"] * 64 + ["o"])] == (0,)
+  for depth in (65, 900, 5000):
+    path = tmp_path / f"deep{depth}.{fmt}"
+    path.write_text(_nested(depth, fmt))
+    if fmt == "tmj" and depth > 400:  # json.loads itself gives up (RecursionError).
+      why = r"not valid JSON \(nested too deeply for the JSON parser\)"
+    else:
+      why = r"group layers nested more than levels.MAX_GROUP_DEPTH = 64 deep"
+    _refused(lambda: levels.load(path), rf"deep{depth}.{fmt}(, layer '[g/]+')?: {why}",
+             seconds=2)
+  with pytest.raises(ValueError, match=r"<tiled>, layer '(g/){64}g': group layers nested more"):
+    levels.load_tiled(json.loads(_nested(65, "tmj")))

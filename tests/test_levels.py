@@ -744,7 +744,7 @@ def test_one_module_per_format():
   assert set(levels.__all__) == {
       "ALL", "BOX", "BOX_TILE", "CATEGORIES", "DEFAULT_MASS", "FLAG_TILE", "FLIP_BITS",
       "GID_MASK", "GOAL_TILE", "HAZARD_TILE", "HEAVY_TILE", "LEGEND", "Level", "MAX_BODIES",
-      "MAX_FILE_BYTES", "MAX_MOVES", "MAX_TILES", "PLATFORM_TILE",
+      "MAX_FILE_BYTES", "MAX_GROUP_DEPTH", "MAX_MOVES", "MAX_TILES", "PLATFORM_TILE",
       "PLAYER", "PLAYER_TILE", "POINT_HALF", "SENSOR", "SLAB", "SOLID", "Tile", "WALL", "load",
       "load_collection", "load_tiled", "names", "parse_ascii", "parse_moves",
       "parse_xsb_collection", "rectangles", "tmx_to_json"}

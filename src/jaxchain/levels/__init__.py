@@ -34,13 +34,14 @@ from jaxchain.levels.level import (ALL, BOX, BOX_TILE, CATEGORIES, FLAG_TILE, GO
                                    rectangles)
 from jaxchain.levels.loader import load
 from jaxchain.levels.tiled import DEFAULT_MASS, FLIP_BITS, GID_MASK, POINT_HALF, load_tiled
-from jaxchain.levels.tmx import tmx_to_json
+from jaxchain.levels.tmx import MAX_GROUP_DEPTH, tmx_to_json
 from jaxchain.levels.xsb import MAX_MOVES, load_collection, parse_moves, parse_xsb_collection
 
 __all__ = [
     "ALL", "BOX", "BOX_TILE", "CATEGORIES", "DEFAULT_MASS", "FLAG_TILE", "FLIP_BITS", "GID_MASK",
     "GOAL_TILE", "HAZARD_TILE", "HEAVY_TILE", "LEGEND", "Level", "MAX_BODIES", "MAX_FILE_BYTES",
-    "MAX_MOVES", "MAX_TILES", "PLATFORM_TILE", "PLAYER", "PLAYER_TILE", "POINT_HALF", "SENSOR",
-    "SLAB", "SOLID", "Tile", "WALL", "load", "load_collection", "load_tiled", "names",
-    "parse_ascii", "parse_moves", "parse_xsb_collection", "rectangles", "tmx_to_json",
+    "MAX_GROUP_DEPTH", "MAX_MOVES", "MAX_TILES", "PLATFORM_TILE", "PLAYER", "PLAYER_TILE",
+    "POINT_HALF", "SENSOR", "SLAB", "SOLID", "Tile", "WALL", "load", "load_collection",
+    "load_tiled", "names", "parse_ascii", "parse_moves", "parse_xsb_collection", "rectangles",
+    "tmx_to_json",
 ]

@@ -5,6 +5,7 @@ where in them an error is.
 from __future__ import annotations
 
 import importlib.resources
+import json
 import os
 import pathlib
 import stat
@@ -73,6 +74,15 @@ def _read_text(file) -> str:
     return data.decode("utf-8-sig")
   except UnicodeDecodeError as e:
     raise ValueError(f"not UTF-8 text ({e.reason} at byte {e.start})") from None
+
+
+def _parse_json(text: str):
+  """`json.loads(text)`, raising ValueError (a `json.JSONDecodeError`, or nesting too
+  deep for the parser, which raises RecursionError) for anything it cannot read."""
+  try:
+    return json.loads(text)
+  except RecursionError:
+    raise ValueError("nested too deeply for the JSON parser") from None
 
 
 _SUFFIXES = {".txt": "ascii", ".xsb": "xsb", ".tmj": "tiled", ".json": "tiled", ".tmx": "tmx"}

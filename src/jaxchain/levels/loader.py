@@ -3,10 +3,8 @@
 
 from __future__ import annotations
 
-import json
-
 from jaxchain.levels.ascii import _legend, parse_ascii
-from jaxchain.levels.files import _SUFFIXES, _level_file, _parent, _read_text
+from jaxchain.levels.files import _SUFFIXES, _level_file, _parent, _parse_json, _read_text
 from jaxchain.levels.level import MAX_BODIES, Level
 from jaxchain.levels.tiled import load_tiled
 from jaxchain.levels.tmx import tmx_to_json
@@ -111,8 +109,8 @@ def load(path, legend=None, *, strict: bool = False, gravity=None,
                       max_bodies=max_bodies)
   if kind == "tiled":
     try:
-      data = json.loads(text)
-    except json.JSONDecodeError as e:
+      data = _parse_json(text)
+    except ValueError as e:
       raise ValueError(f"{file.name}: not valid JSON ({e})") from None
     return load_tiled(data, name=stem, base=_parent(file), gravity=gravity, source=file.name,
                       max_bodies=max_bodies)

@@ -8,7 +8,6 @@ import base64
 import binascii
 import dataclasses
 import difflib
-import json
 import math
 import os
 import warnings
@@ -18,11 +17,11 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from jaxchain.levels.files import _read_text, _Where
+from jaxchain.levels.files import _parse_json, _read_text, _Where
 from jaxchain.levels.level import (ALL, BOX, BOX_TILE, CATEGORIES, MAX_BODIES, MAX_TILES, PLAYER,
                                    PLAYER_TILE, SENSOR, SLAB, SOLID, Level, _Body,
                                    _label_rectangles, _level, _max_bodies, _too_many, _U32)
-from jaxchain.levels.tmx import _xml_int, _xml_object, _xml_value
+from jaxchain.levels.tmx import MAX_GROUP_DEPTH, _xml_int, _xml_object, _xml_value
 
 FLIP_BITS = 0xF0000000  # Tiled GID flags: flipped horizontally, vertically, diagonally; hex 120
 GID_MASK = 0x0FFFFFFF  # the tile id bits of a Tiled GID
@@ -329,8 +328,8 @@ def _read_tileset(ts: Mapping, base, where: _Where) -> list:
                     t.get("class") or t.get("type") or ""))
     return tiles
   try:
-    data = json.loads(text)
-  except json.JSONDecodeError as e:
+    data = _parse_json(text)
+  except ValueError as e:
     raise where.error(f"external tileset {source!r} is not valid JSON ({e})") from None
   return _read_tileset(data, None, where)
 
@@ -479,8 +478,9 @@ def _normpath(path) -> str:
   return os.path.normpath(str(path))
 
 
-def _walk(layers, inherited, offset, prefix, ctx: _Context):
-  """Adds the bodies of `layers` (and of groups within them) to `ctx.bodies`."""
+def _walk(layers, inherited, offset, prefix, ctx: _Context, depth: int = 0):
+  """Adds the bodies of `layers` (and of groups within them, at most `MAX_GROUP_DEPTH`
+  deep) to `ctx.bodies`; `depth` counts the groups around `layers`."""
   where = ctx.where
   for k, layer in enumerate(layers):
     if not isinstance(layer, Mapping):
@@ -499,7 +499,11 @@ def _walk(layers, inherited, offset, prefix, ctx: _Context):
       raise lwhere.error(str(e)) from None
     kind = layer.get("type")
     if kind == "group":
-      _walk(_array(layer.get("layers"), "layers", lwhere), props, off, lname + "/", ctx)
+      if depth >= MAX_GROUP_DEPTH:
+        raise lwhere.error(f"group layers nested more than levels.MAX_GROUP_DEPTH = "
+                           f"{MAX_GROUP_DEPTH} deep")
+      _walk(_array(layer.get("layers"), "layers", lwhere), props, off, lname + "/", ctx,
+            depth + 1)
     elif kind == "tilelayer":
       for key in _MOTION:
         if key in own:
@@ -677,9 +681,9 @@ def _apply_template(obj, where: _Where, ctx: _Context) -> dict:
       tileset = None if ts is None else {"firstgid": _xml_int(ts, "firstgid", where, 1),
                                          "source": ts.get("source")}
     else:
-      data = json.loads(text)
+      data = _parse_json(text)
       template, tileset = data["object"], data.get("tileset")
-  except (ElementTree.ParseError, json.JSONDecodeError, ValueError, KeyError, TypeError) as e:
+  except (ElementTree.ParseError, ValueError, KeyError, TypeError) as e:
     raise where.error(f"template {path!r} is not a Tiled template ({e})") from None
   merged = {**template, **{k: v for k, v in obj.items() if k not in ("template", "properties")}}
   merged["properties"] = _property_list(template.get("properties")) + _property_list(

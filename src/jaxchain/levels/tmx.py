@@ -8,6 +8,9 @@ import xml.etree.ElementTree as ElementTree
 
 from jaxchain.levels.files import _Where
 
+# How deep group layers may nest (Tiled maps rarely nest more than a few).
+MAX_GROUP_DEPTH = 64
+
 
 def tmx_to_json(text: str, *, source: str = "<tmx>") -> dict:
   """Parses a TMX map into the structure of Tiled's JSON format, for `load_tiled`.
@@ -99,7 +102,7 @@ _XML_LAYERS = {"layer": "tilelayer", "objectgroup": "objectgroup", "imagelayer":
                "group": "group"}
 
 
-def _xml_layers(parent, where: _Where) -> list:
+def _xml_layers(parent, where: _Where, depth: int = 0) -> list:
   layers = []
   for child in parent:
     if child.tag not in _XML_LAYERS:
@@ -130,7 +133,10 @@ def _xml_layers(parent, where: _Where) -> list:
     elif child.tag == "objectgroup":
       layer["objects"] = [_xml_object(o, lwhere) for o in child.findall("object")]
     elif child.tag == "group":
-      layer["layers"] = _xml_layers(child, where)
+      if depth >= MAX_GROUP_DEPTH:
+        raise lwhere.error(f"group layers nested more than levels.MAX_GROUP_DEPTH = "
+                           f"{MAX_GROUP_DEPTH} deep")
+      layer["layers"] = _xml_layers(child, where, depth + 1)
     layers.append(layer)
   return layers
 
