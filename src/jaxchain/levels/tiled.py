@@ -293,15 +293,19 @@ def _inflate(raw: bytes, compression: str, size: int, width: int, height: int,
 
 
 def _read_tileset(ts: Mapping, base, where: _Where) -> list:
-  """A tileset's tiles that have data: `[(local id, properties element, class)]`."""
+  """A tileset's tiles that have data: `[(local id, properties element, class, shaped)]`,
+  `shaped` saying whether the tile has collision shapes (objects drawn in Tiled's
+  collision editor: its `objectgroup`)."""
   source = ts.get("source")
   if source is None:
     tiles = _array(ts.get("tiles"), "tiles", where)
     if not all(isinstance(t, Mapping) for t in tiles):
       raise where.error("'tiles' must be an array of objects")
+    shaped = lambda og: isinstance(og, Mapping) and bool(og.get("objects"))
     return [(t.get("id"), t.get("properties"),
              _name(t.get("class") or t.get("type"), "class", _Where(where.source, where.layer,
-                                                                    f"tile {t.get('id')!r}")))
+                                                                    f"tile {t.get('id')!r}")),
+             shaped(t.get("objectgroup")))
             for t in tiles]
   if not isinstance(source, str):
     raise where.error(f"'source' (an external tileset's file) must be a string, got {source!r}")
@@ -322,10 +326,12 @@ def _read_tileset(ts: Mapping, base, where: _Where) -> list:
       raise where.error(f"external tileset {source!r} is not valid XML ({e})") from None
     tiles = []
     for t in root.iter("tile"):
-      props = [dict(name=p.get("name"), value=_xml_value(p)) for p in t.iter("property")]
+      # The tile's own properties (not those of the objects of its collision shapes).
+      props = [dict(name=p.get("name"), value=_xml_value(p))
+               for p in t.findall("properties/property")]
       local = t.get("id", "")
       tiles.append((int(local) if local.isdigit() else local, props,
-                    t.get("class") or t.get("type") or ""))
+                    t.get("class") or t.get("type") or "", t.find("objectgroup/object") is not None))
     return tiles
   try:
     data = _parse_json(text)
@@ -335,9 +341,11 @@ def _read_tileset(ts: Mapping, base, where: _Where) -> list:
 
 
 
-def _tile_properties(tilesets, base, where: _Where) -> dict[int, tuple[dict, tuple[str, ...]]]:
-  """GID -> (checked properties, tags from the tile's class) of the tiles that have any."""
-  out = {}
+def _tile_properties(tilesets, base, where: _Where
+                     ) -> tuple[dict[int, tuple[dict, tuple[str, ...]]], dict[int, str]]:
+  """GID -> (checked properties, tags from the tile's class) of the tiles that have any;
+  and GID -> "tileset 'name' tile k" of the tiles that have collision shapes."""
+  out, shaped = {}, {}
   if not isinstance(tilesets, list):
     raise where.error("'tilesets' must be an array")
   for k, ts in enumerate(tilesets):
@@ -347,12 +355,14 @@ def _tile_properties(tilesets, base, where: _Where) -> dict[int, tuple[dict, tup
     ts_where = _Where(where.source, f"tileset {label!r}")
     first = _int_field(ts, "firstgid", ts_where)
     tiles = _read_tileset(ts, base, ts_where)
-    for local, props, cls in tiles:
+    for local, props, cls, has_shapes in tiles:
       if not isinstance(local, int) or local < 0:
         raise ts_where.error(f"a tile has an invalid id {local!r}")
       tile_where = _Where(where.source, f"tileset {label!r}", f"tile {local}")
       out[first + local] = (_properties(props, tile_where), (cls,) if cls else ())
-  return out
+      if has_shapes:
+        shaped[first + local] = f"tileset {label!r} tile {local}"
+  return out, shaped
 
 
 @dataclasses.dataclass(frozen=True)
@@ -392,7 +402,9 @@ class _Context:
   base: object
   firstgids: dict  # normalised external tileset path -> firstgid
   max_bodies: int
+  shaped: dict  # GID -> its name, of the tiles with collision shapes
   bodies: list = dataclasses.field(default_factory=list)
+  shaped_used: set = dataclasses.field(default_factory=set)  # of them, the ones made bodies
   decorative: list = dataclasses.field(default_factory=list)  # tile layers with no solid tile
   solid_seen: bool = False  # some layer, group or tile has a `solid` property
 
@@ -416,7 +428,9 @@ def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
   Warns:
     UserWarning: when tile layers hold tiles but no layer, group or tile of the map
       has a `solid` property (a map written for the old rule, under which every
-      tile layer was solid: see the migration note in `load`).
+      tile layer was solid: see the migration note in `load`); when tiles with
+      collision shapes (Tiled's collision editor) make bodies: the shapes are
+      ignored, each such tile is a full cell (a tile object its box).
 
   Examples:
     >>> from jaxchain import levels
@@ -451,14 +465,14 @@ def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
   if gravity is None:
     gravity = map_props.get("gravity", (0.0, -9.81))
   tilesets = data.get("tilesets", [])
-  tiles = _tile_properties(tilesets, base, where)
+  tiles, shaped = _tile_properties(tilesets, base, where)
   firstgids = {}
   if base is not None:
     for ts in tilesets:
       if isinstance(ts.get("source"), str) and isinstance(ts.get("firstgid"), int):
         firstgids[_normpath(base.joinpath(ts["source"]))] = ts["firstgid"]
   ctx = _Context(where, (width, height, tw, th), units, tiles, base, firstgids,
-                 _max_bodies(max_bodies), solid_seen=any("solid" in props for props, _ in tiles.values()))
+                 _max_bodies(max_bodies), shaped, solid_seen=any("solid" in props for props, _ in tiles.values()))
   layers = data.get("layers", [])
   if not isinstance(layers, list):
     raise where.error("'layers' must be an array")
@@ -470,6 +484,13 @@ def load_tiled(data: Mapping, *, name: str = "", base=None, gravity=None,
         f"of this map has a 'solid' property: tile layer(s) {names_} made no bodies. Give the "
         f"layers (or tileset tiles) that should collide the bool property solid=true, and "
         f"solid=false to the others to silence this warning", UserWarning, stacklevel=2)
+  if ctx.shaped_used:
+    names_ = ", ".join(ctx.shaped[g] for g in sorted(ctx.shaped_used))
+    warnings.warn(
+        f"{where}: {names_} ha{'s' if len(ctx.shaped_used) == 1 else 've'} collision shapes "
+        f"(drawn in Tiled's collision editor), which jaxchain ignores: a solid tile is its full "
+        f"cell, a tile object its box. Draw the shapes as objects of an object layer instead "
+        f"(boxes: rectangles), or give those tiles solid=false", UserWarning, stacklevel=2)
   bounds = (0.0, 0.0, width * tw / units.ux, height * th / units.uy)
   return _level(name, ctx.bodies, bounds, gravity)
 
@@ -543,6 +564,8 @@ def _tile_layer(layer, props, offset, lname, where, ctx: _Context):
                         np.unique(gids[used]).astype(np.int64))
   if len(keys):  # The tiles with data in the layer: their own labels, for every cell at once.
     values = np.asarray([label(*ctx.tiles[g]) for g in keys.tolist()], np.int64)
+    ctx.shaped_used.update(g for g, v in zip(keys.tolist(), values.tolist())
+                           if v >= 0 and g in ctx.shaped)
     at = np.minimum(np.searchsorted(keys, gids), len(keys) - 1)
     labels = np.where(keys[at] == gids, values[at], labels)
   if not np.any(labels >= 0):
@@ -620,6 +643,7 @@ def _object_layer(layer, props, offset, lname, where, ctx: _Context):
     tags = tuple(t for t in (lname, oname, kind) if t)
     resolved = dict(props)
     box = (0.0, 0.0, w, h)  # Relative to the origin (x, y), y down.
+    gid = None
     if "gid" in obj:  # A tile object: its origin (x, y) is its bottom-left corner.
       gid = _int_field(obj, "gid", owhere, minimum=0) & GID_MASK
       tile_props, tile_tags = ctx.tiles.get(gid, ({}, ()))
@@ -629,6 +653,8 @@ def _object_layer(layer, props, offset, lname, where, ctx: _Context):
     resolved.update(_properties(obj.get("properties"), owhere))
     if resolved.get("solid") is False:
       continue
+    if gid in ctx.shaped:
+      ctx.shaped_used.add(gid)
     ox, oy = x + offset[0], y + offset[1]
     if point:
       spawn = next((t for t in _MOVABLE_TAGS if t in tags + resolved.get("tag", ())), None)

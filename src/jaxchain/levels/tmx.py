@@ -93,6 +93,9 @@ def _xml_tileset(ts, where: _Where) -> dict:
     if t.get("class") or t.get("type"):
       tile["class"] = t.get("class") or t.get("type")
     tile["properties"] = _xml_properties(t)
+    shapes = t.findall("objectgroup/object")
+    if shapes:  # Collision shapes (only whether there are any is read).
+      tile["objectgroup"] = {"objects": [dict(o.attrib) for o in shapes]}
     tiles.append(tile)
   out["tiles"] = tiles
   return out
