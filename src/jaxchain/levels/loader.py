@@ -25,7 +25,9 @@ def load(path, legend=None, *, strict: bool = False, gravity=None,
       orientation). Tile data: CSV, or base64 uncompressed, zlib or gzip (TMX also
       `<tile gid>` elements); flip bits of the GIDs are masked off. External
       tilesets (`.tsx`, `.tsj`) and object templates (`.tx`, `.tj`) are read from
-      beside the map; images never are.
+      the paths the map names, relative to its directory (or absolute), each a
+      regular file; images never are. Collision shapes drawn on tiles in Tiled's
+      collision editor are ignored, with a `UserWarning` naming the tiles.
       **Tile layers are decorative unless marked solid**: a tile makes a body only
       when the bool property `solid` is true on the tile (in its tileset) or, when
       the tile does not say, on its layer or a group around it; the tiles of one
@@ -81,9 +83,16 @@ def load(path, legend=None, *, strict: bool = False, gravity=None,
   Returns:
     The `Level`, named after the file's stem (or the map property `name`).
 
+  Limits (docs/levels.md, "Limits"): every file read is a regular file of at most
+  `MAX_FILE_BYTES`, read as UTF-8 (a byte-order mark dropped); a map has at most
+  `MAX_TILES` cells, group layers nest at most `MAX_GROUP_DEPTH` deep, compressed
+  tile data inflates only up to its layer's size, and a level has at most
+  `max_bodies` bodies. Past any of them, a ValueError names the file and the limit.
+
   Raises:
     ValueError: for an unsupported extension or malformed input, naming the file
-      and the line and column, or the layer and object, and the property.
+      and the line and column, or the layer and object, and the property; for a
+      file past a limit.
     FileNotFoundError: for a path that does not exist and is not a shipped level.
 
   Examples:
