@@ -199,8 +199,11 @@ def test_raycast_rules_inside_graze_reach_mask_ignore():
   assert _hit(jc.raycast(w, [3.5, 1.0], [1.0, 0.0])) == (False, -1, INF, [3.5, 1.0], [0.0, 0.0])
   # From inside the floor, straight down: nothing; up, out of the floor: the box above.
   assert jc.raycast(w, [1.0, -0.5], [0.0, 1.0]).body == 2
-  # Along the floor's top face (and the wall's bottom face): grazing is no hit.
-  assert not jc.raycast(w, [-4.0, 0.0], [1.0, 0.0]).hit
+  # Along the floor's top face: grazing is no hit, where nothing stands on it (left), and
+  # the base of the wall that stands on it (right: there the ray is between the two).
+  assert not jc.raycast(w, [-4.0, 0.0], [-1.0, 0.0]).hit
+  assert not jc.raycast(w, [3.5, 2.0], [1.0, 0.0]).hit  # Along the wall's top face.
+  assert _hit(jc.raycast(w, [-4.0, 0.0], [1.0, 0.0])) == (True, 1, 7.0, [3.0, 0.0], [-1.0, 0.0])
   assert jc.raycast(w, [-4.0, 1e-3], [1.0, 0.0]).body == 1  # Just above it: the wall.
   # Starting on a face, pointing in: distance 0; pointing out: nothing.
   assert _hit(jc.raycast(w, [3.0, 1.0], [1.0, 0.0]))[:3] == (True, 1, 0.0)
@@ -214,6 +217,48 @@ def test_raycast_rules_inside_graze_reach_mask_ignore():
   assert jc.raycast(w, [0.0, 0.5], [1.0, 0.0], ignore=2).body == 1
   skip = jnp.zeros(CAP, bool).at[jnp.array([1, 2])].set(True)
   assert not jc.raycast(w, [0.0, 0.5], [1.0, 0.0], ignore=skip).hit
+
+
+def test_raycast_hits_a_tiled_floor_along_its_seams():
+  """Along a seam (the ray on the faces between two bodies), the ray enters where both
+  sides are solid, as it would the one merged body: a ground check at an integer x finds
+  the floor the step and move_and_slide see as one surface."""
+  tiles = make([[-1.0, -0.5], [1.0, -0.5], [3.0, -0.25]], [[1.0, 0.5], [1.0, 0.5], [1.0, 0.25]],
+               [INF, INF, INF])  # Tiles [-2, 0], [0, 2], [2, 4], tops at y = 0.
+  merged = make([[0.0, -0.5]], [[2.0, 0.5]], [INF])
+  cast = jax.jit(jc.raycast)  # One compile for the rays below.
+  down = jnp.array([0.0, -1.0])
+  assert _hit(cast(merged, jnp.array([0.0, 2.0]), down)) == (True, 0, 2.0, [0.0, 0.0],
+                                                             [0.0, 1.0])
+  for x, body in ((0.0, 0), (2.0, 1), (-0.5, 0), (0.5, 1)):  # Seams, and inside one tile.
+    assert _hit(cast(tiles, jnp.array([x, 2.0]), down)) == (True, body, 2.0, [x, 0.0],
+                                                            [0.0, 1.0]), x
+  # The outer edges are faces of one tile only: grazing, no hit.
+  assert not cast(tiles, jnp.array([-2.0, 2.0]), down).hit
+  assert not cast(tiles, jnp.array([4.0, 2.0]), down).hit
+  # A step: at x = 2 the tile on the right is lower; the ray runs down the left tile's
+  # side and enters where both sides are solid: the right tile's top, y = -0.5.
+  steps = tiles.replace(pos=tiles.pos.at[2, 1].set(-0.75))  # Its top at y = -0.5.
+  assert _hit(cast(steps, jnp.array([2.0, 2.0]), down)) == (True, 2, 2.5, [2.0, -0.5],
+                                                            [0.0, 1.0])
+  # A wall of stacked tiles, a ray along the seam at y = 1 from the left; and a vmapped
+  # batch of rays over both kinds of seam.
+  wall = make([[3.5, 0.5], [3.5, 1.5]], [[0.5, 0.5], [0.5, 0.5]], [INF, INF])
+  assert _hit(cast(wall, jnp.array([0.0, 1.0]), jnp.array([1.0, 0.0]))) == (
+      True, 0, 3.0, [3.0, 1.0], [-1.0, 0.0])
+  xs = jnp.array([-2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.0])
+  r = jax.vmap(lambda x: jc.raycast(tiles, jnp.stack([x, 2.0]), down))(xs)
+  assert r.hit.tolist() == [False] + [True] * 5 + [False]
+  np.testing.assert_array_equal(r.distance[1:6], [2.0] * 5)
+  # A tiny direction is a direction: (1e-30, -1e-30) is normalised, not taken for zero.
+  r = cast(tiles, jnp.array([-1.5, 0.5]), jnp.array([1e-30, -1e-30]))
+  assert _hit(r)[:2] == (True, 0) and r.normal.tolist() == [0.0, 1.0]
+  np.testing.assert_allclose(r.distance, 0.5 * np.sqrt(2.0), rtol=1e-6)
+  with pytest.raises(ValueError, match="direction must be nonzero"):
+    jc.raycast(tiles, [0.0, 1.0], [1e-40, 0.0])  # Below float32's normals: flushed to 0.
+  # The seam rule keeps the gradient of the distance.
+  g = jax.grad(lambda o: jc.raycast(tiles, o, down).distance)(jnp.array([0.0, 2.0]))
+  np.testing.assert_allclose(g, [0.0, 1.0], **EXACT)
 
 
 def test_raycast_zero_direction():

@@ -16,7 +16,8 @@ static arguments, with fixed output shapes and no Python loop over bodies:
 
 Directions are those of `jaxchain.geometry.DIRECTIONS`: `0: +x, 1: -x, 2: +y, 3: -y`.
 The pair queries (`touching_bodies`, `drive_platforms`, `drop_through`) build dense
-pairs, O(n^2) per world, like the dense broadphase; the others are O(n).
+pairs, O(n^2) per world, like the dense broadphase; `raycast` sorts, O(n log n); the
+others are O(n).
 
 Host input is checked where it is concrete (a `ValueError` names the argument);
 traced input (inside `jit` or `vmap`) is not checked, and a bad value there gives a
@@ -277,17 +278,27 @@ def raycast(world: World, origin, direction, max_distance=float("inf"), *, mask=
 
   The slab method on every body: the ray enters a box at the latest of its per-axis
   entry times and leaves it at the earliest exit; it hits when it enters before it
-  leaves (strictly: a ray that only grazes a corner, or runs along a face, hits
-  nothing) at a distance in `[0, max_distance]`. A body that contains the origin is
-  ignored (Box2D's rule: a ray starting inside a box does not hit it, so a character
-  can cast from its own centre); a ray starting on a face and pointing into the box
-  hits it at distance 0. The nearest hit wins, ties to the lower index.
+  leaves (strictly: a ray that only grazes a corner, or runs along the face of one
+  body, hits nothing) at a distance in `[0, max_distance]`. A body that contains the
+  origin is ignored (Box2D's rule: a ray starting inside a box does not hit it, so a
+  character can cast from its own centre); a ray starting on a face and pointing into
+  the box hits it at distance 0. The nearest hit wins, ties to the lower index.
 
-  Distances are in world units: `direction` is normalised first. Gradient-safe: the
-  distance and point of a hit are differentiable in `origin`, `direction` and the
-  bodies' positions and sizes, also for axis-aligned rays (a direction component of
-  0 takes no division; the normalisation is guarded: `chain.safe_divide`'s double
-  `where`).
+  Seams: an axis-aligned ray that runs exactly along the faces between bodies (the seam
+  of a floor of tiles, the base of a wall standing on a floor) sees them as their
+  union, as the step and `move_and_slide` see one surface there: it enters a body on
+  one side of the seam where a body on the other side holds it too (and both hold
+  points past the entry), and hits that body there. A ground check straight down at an
+  integer x over a tiled floor hits it, as over one merged body; along the outer face
+  of a floor with nothing on the other side it still grazes and hits nothing.
+
+  Distances are in world units: `direction` is normalised first (divided by its
+  largest component, then by its length, so any direction of normal floats works,
+  `(1e-30, -1e-30)` too). Gradient-safe: the distance and point of a hit are
+  differentiable in `origin`, `direction` and the bodies' positions and sizes, also
+  for axis-aligned rays (a direction component of 0 takes no division; the
+  normalisation is guarded: `chain.safe_divide`'s double `where`). O(n log n): the
+  seams sort the bodies along the ray.
 
   Args:
     world: a single world.
@@ -298,11 +309,13 @@ def raycast(world: World, origin, direction, max_distance=float("inf"), *, mask=
     ignore: optional body index, or `[n]` bool mask, of bodies to skip (the caster).
 
   Returns:
-    A `RayHit`. Under `jit` a zero direction hits nothing.
+    A `RayHit`. Under `jit` a zero direction (or one below the dtype's smallest normal
+    float, which XLA flushes to zero) hits nothing.
 
   Raises:
-    ValueError: for concrete input that is not `[2]` finite numbers, a zero direction,
-      a negative or NaN `max_distance`, or a bad mask or ignore.
+    ValueError: for concrete input that is not `[2]` finite numbers, a zero direction
+      (no component of magnitude at least the dtype's smallest normal float), a
+      negative or NaN `max_distance`, or a bad mask or ignore.
 
   Examples:
     >>> import jaxchain as jc
@@ -316,8 +329,11 @@ def raycast(world: World, origin, direction, max_distance=float("inf"), *, mask=
   origin = _vector("origin", "raycast", origin, dtype)
   direction = _vector("direction", "raycast", direction, dtype)
   host = _concrete(direction)
-  if host is not None and not np.any(host != 0):
-    raise ValueError("raycast: direction must be nonzero, got [0, 0]")
+  tiny = np.finfo(np.dtype(dtype)).tiny
+  if host is not None and not np.max(np.abs(host.astype(np.float64))) >= tiny:
+    raise ValueError(f"raycast: direction must be nonzero, with a component of magnitude at "
+                     f"least {tiny:.3g} (the smallest normal {np.dtype(dtype).name}: smaller ones "
+                     f"flush to zero), got {host.tolist()}")
   host = _concrete(max_distance)
   if host is not None and (host.shape != () or np.isnan(host) or host < 0):
     raise ValueError(f"raycast: max_distance must be a number >= 0 (inf for no limit), got "
@@ -345,20 +361,30 @@ def _raycast(world: World, origin: jax.Array, direction: jax.Array, max_distance
     zero = jnp.zeros(2, origin.dtype)
     return RayHit(hit=jnp.zeros((), bool), body=jnp.full((), -1, jnp.int32),
                   distance=max_distance, point=origin, normal=zero)
-  sq = jnp.sum(direction * direction)
-  ok = sq > 0
-  norm = jnp.sqrt(jnp.where(ok, sq, 1.0))  # Guarded: no NaN gradient at a zero direction.
-  u = jnp.where(ok, direction / norm, 0.0)
+  # Normalised by its largest component first, so that a tiny direction (1e-30, -1e-30)
+  # does not square to zero; guarded: no NaN gradient at a zero direction.
+  scale = jnp.max(jnp.abs(direction))
+  ok = scale > 0
+  d = direction / jnp.where(ok, scale, 1.0)
+  u = jnp.where(ok, d / jnp.sqrt(jnp.where(ok, jnp.sum(d * d), 1.0)), 0.0)
   moving = u != 0  # [2]
   inv = jnp.where(moving, 1.0 / jnp.where(moving, u, 1.0), 0.0)
   low, high = world.pos - world.half, world.pos + world.half  # [n, 2]
   t1, t2 = (low - origin[None]) * inv[None], (high - origin[None]) * inv[None]
   enter_k = jnp.where(moving[None], jnp.minimum(t1, t2), -jnp.inf)
   leave_k = jnp.where(moving[None], jnp.maximum(t1, t2), jnp.inf)
-  # Along an axis the ray does not move, it must lie strictly inside the slab.
+  # Along an axis the ray does not move, it must lie strictly inside the slab...
   in_slab = jnp.where(moving[None], True, (origin[None] > low) & (origin[None] < high))
   enter, leave = jnp.max(enter_k, axis=-1), jnp.min(leave_k, axis=-1)
-  hits = (ok & world.active & ~world.sensor & admitted & jnp.all(in_slab, axis=-1)
+  hittable = ok & world.active & ~world.sensor & admitted
+  # ...or on a seam: on a face of bodies on one side of it and of bodies on the other,
+  # the ray enters a body once a body of the other side holds it too (the union).
+  line = jnp.sum(moving) == 1
+  above = hittable & line & jnp.any(~moving[None] & (origin[None] == low), axis=-1)
+  below = hittable & line & jnp.any(~moving[None] & (origin[None] == high), axis=-1)
+  seam = (above & _covered(enter, enter, leave, below)) | (below & _covered(enter, enter, leave,
+                                                                           above))
+  hits = (hittable & (jnp.all(in_slab, axis=-1) | seam)
           & (enter >= 0) & (enter < leave) & (enter <= max_distance))
   best = jnp.argmin(jnp.where(hits, enter, jnp.inf)).astype(jnp.int32)
   hit = jnp.any(hits)
@@ -370,6 +396,17 @@ def _raycast(world: World, origin: jax.Array, direction: jax.Array, max_distance
   normal = jnp.where(onehot, -jnp.sign(u), 0.0)
   return RayHit(hit=hit, body=jnp.where(hit, best, -1), distance=distance,
                 point=jnp.where(hit, point, origin), normal=jnp.where(hit, normal, 0.0))
+
+
+def _covered(t: jax.Array, enter: jax.Array, leave: jax.Array, member: jax.Array
+             ) -> jax.Array:
+  """`[n]` bool: whether `t[i]` lies in `[enter[j], leave[j])` of some member j (`[n]`
+  each). O(n log n): the members sorted by entry, with the running latest exit."""
+  e = jnp.where(member, enter, jnp.inf)
+  order = jnp.argsort(e)
+  reach = jax.lax.cummax(jnp.where(member, leave, -jnp.inf)[order])
+  k = jnp.searchsorted(e[order], t, side="right")  # Members entering at or before t.
+  return (k > 0) & (reach[jnp.maximum(k - 1, 0)] > t)
 
 
 # --- move_and_slide ----------------------------------------------------------------------
