@@ -370,6 +370,38 @@ def test_move_and_slide_one_way_from_below_and_from_above():
   assert w.pos[5].tolist() == [-4.0, 0.5]
 
 
+def test_move_and_slide_never_goes_deeper_into_what_it_overlaps():
+  """Sunk into a floor or a wall, the body may leave the overlap but not go deeper: along
+  the pair's contact axis (the one of smaller overlap, as in the step), a move toward
+  the obstacle's centre stops where it is; other moves are free."""
+  base = _level()
+  # Sunk 0.01 into the floor, falling (it fell through: y 0.39 -> -0.61).
+  w, info = _slide(base, [0.0, 0.49], [0.0, -60.0])
+  np.testing.assert_array_equal(w.pos[PLAYER], np.float32([0.0, 0.49]))  # Where it was.
+  assert w.vel[PLAYER].tolist() == [0.0, 0.0]
+  assert bool(info.on_floor) and int(info.hit_y) in (0, 1)
+  # Sliding along it, pressed down: x is free (the contact axis is y), y stays.
+  w, info = _slide(base, [0.0, 0.49], [30.0, -30.0])
+  np.testing.assert_allclose(w.pos[PLAYER], [0.5, 0.49], **EXACT)
+  assert not info.on_wall and bool(info.on_floor)
+  # Jumping out of it: free.
+  w, info = _slide(base, [0.0, 0.49], [0.0, 30.0])
+  np.testing.assert_allclose(w.pos[PLAYER], [0.0, 0.99], **EXACT)
+  assert not info.on_floor and not info.on_ceiling
+  # 0.1 inside the wall (left face x = 4) and moving into it (it came out the far side).
+  w, info = _slide(base, [3.6, 1.5], [120.0, 0.0])
+  np.testing.assert_array_equal(w.pos[PLAYER], np.float32([3.6, 1.5]))
+  assert bool(info.on_wall) and int(info.hit_x) == 2
+  assert w.vel[PLAYER].tolist() == [0.0, 0.0]
+  w, info = _slide(base, [3.6, 1.5], [-30.0, 0.0])  # Leaving it: free.
+  np.testing.assert_allclose(w.pos[PLAYER], [3.1, 1.5], **EXACT)
+  assert not info.on_wall
+  # A one-way ledge still lets a body below its margin pass (drop_through relies on it).
+  w, info = _slide(base, [-2.0, 1.95], [0.0, -60.0])
+  np.testing.assert_allclose(w.pos[PLAYER], [-2.0, 0.95], **EXACT)
+  assert not info.on_floor
+
+
 def test_move_and_slide_vmap_and_no_recompile():
   base = _level()
   batch = jc.stack([base, base.replace(pos=base.pos.at[2, 0].set(2.5))])  # A closer wall.

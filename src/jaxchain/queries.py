@@ -448,8 +448,12 @@ def move_and_slide(world: World, body, velocity, dt, *, skin: float = SKIN
   active, non-sensor body that collision layers admit with it, movable ones included,
   that overlaps it along the other axis by more than `skin` (faces within `skin` of
   each other, as a floor under a body sliding along a wall, are no obstacle: no ghost
-  collisions at seams) and lies ahead with a gap of at least `-skin` (a body it already
-  overlaps deeper does not block it: it may leave; nothing pushes it out either). A
+  collisions at seams) and lies ahead with a gap of at least `-skin`. A body it
+  already overlaps more deeply never lets it go deeper: when that axis is the pair's
+  contact axis (the one of smaller overlap, ties x, as in the step) and the move heads
+  toward the obstacle's centre, the body stays where it is along that axis (a hit, its
+  velocity component zeroed); moves that leave the overlap, or slide along it (a body
+  sunk into a floor running sideways), are free, and nothing pushes it out. A
   one-way body blocks only a downward move whose bottom starts at or above its top, up
   to the step's one-way margin (`geometry.ONE_WAY_MARGIN` of the summed half-heights),
   and is then landed on flush; other moves pass it (from below, from the sides, and
@@ -518,17 +522,21 @@ def _sweep(world: World, obstacle: jax.Array, p: jax.Array, h: jax.Array, axis: 
   gap = jnp.abs(d[:, axis]) - reach[:, axis]  # >= 0: apart along the axis.
   ahead = jnp.where(move > 0, d[:, axis] > 0, d[:, axis] < 0)
   solid = ~world.one_way & (gap >= -skin)
+  # Already inside it, this axis the pair's contact axis (the smaller overlap; ties x, as
+  # in the step): moving toward its centre would go deeper, so the body stays put.
+  deeper = ~world.one_way & (gap < -skin) & ((-gap <= side) if axis == 0 else (-gap < side))
   if axis == 1:  # A one-way body stops only a fall that starts above it (its margin).
     margin = geometry.ONE_WAY_MARGIN * reach[:, 1]
     solid = solid | (world.one_way & (move < 0) & (gap >= -margin))
   else:
     solid = solid & ~world.one_way
-  stop = obstacle & ahead & (side > skin) & solid & (move != 0)
+  stop = obstacle & ahead & (side > skin) & (solid | deeper) & (move != 0)
   clear = jnp.maximum(gap, 0.0)
   stop = stop & (clear <= jnp.abs(move))
   j = jnp.argmin(jnp.where(stop, clear, jnp.inf)).astype(jnp.int32)
   hit = jnp.any(stop)
   face = world.pos[j, axis] - jnp.sign(move) * reach[j, axis]
+  face = jnp.where(deeper[j], p[axis], face)
   return jnp.where(hit, face, p[axis] + move), hit, jnp.where(hit, j, -1)
 
 
