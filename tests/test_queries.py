@@ -494,6 +494,42 @@ def test_drive_platforms_depth_mask_and_vmap():
     jc.drive_platforms(w, 0, [1.0, 0.0, 0.0])
 
 
+def test_drive_platforms_carries_a_stack_of_any_height_and_reports_what_depth_leaves():
+  # A platform (0) and a stack of 12 frictionless boxes on it, at rest.
+  w = jc.World.create([[0.0, 0.0]] + [[0.0, float(k)] for k in range(1, 13)],
+                      [[2.0, 0.5]] + [[0.5, 0.5]] * 12, [INF] + [1.0] * 12, gravity=(0.0, 0.0))
+  assert jc.drive_platforms(w, 0, [2.0, 0.0]).vel[:, 0].tolist() == [2.0] * 13  # Default.
+  out, left = jc.drive_platforms(w, 0, [2.0, 0.0], depth=8, left_behind=True)
+  assert out.vel[:, 0].tolist() == [2.0] * 9 + [0.0] * 4  # Eight boxes high.
+  assert left.tolist() == [False] * 9 + [True] * 4  # The top four: reported.
+  out, left = jc.drive_platforms(w, 0, [2.0, 0.0], left_behind=True)
+  assert out.vel[:, 0].tolist() == [2.0] * 13 and not left.any()
+  with pytest.raises(ValueError, match="depth must be None or an integer >= 0"):
+    jc.drive_platforms(w, 0, [1.0, 0.0], depth=-1)
+
+
+def test_a_traced_body_index_out_of_range_moves_nothing():
+  """The host refuses body -1 (or n); under jit it is no body: nothing moves (it used to
+  move the last body, as NumPy indexing wraps -1)."""
+  unpad = lambda w, n: jax.tree.map(lambda x: x[:n] if x.ndim and x.shape[0] == CAP else x, w)
+  w, ledge = unpad(_level(), PLAYER + 1), unpad(_ledge_scene(), 3)  # Each last: the mover.
+  assert w.num_bodies == PLAYER + 1 and ledge.num_bodies == 3
+  slide_at = jax.jit(lambda w, b: jc.move_and_slide(w, b, jnp.array([60.0, -60.0]), DT))
+  drop_at = jax.jit(jc.drop_through)
+  for body in (-1, -7, PLAYER + 1, 100):
+    out, info = slide_at(w, body)
+    np.testing.assert_array_equal(out.pos, w.pos)
+    np.testing.assert_array_equal(out.vel, w.vel)
+    assert (int(info.hit_x), int(info.hit_y), bool(info.on_floor)) == (-1, -1, False)
+    out, dropped = drop_at(ledge, body)
+    assert not dropped and out.pos.tolist() == ledge.pos.tolist()
+  out, info = slide_at(w, PLAYER)  # A valid index, the same trace: it moves.
+  assert out.pos[PLAYER].tolist() == [1.0, 0.5]
+  assert bool(drop_at(ledge, 2)[1])
+  driven = jax.jit(lambda w, b: jc.drive_platforms(w, b, jnp.array([2.0, 0.0])))
+  np.testing.assert_array_equal(driven(_platform_scene(), -1).vel, _platform_scene().vel)
+
+
 def test_one_way_platform_side_and_below_touch_nothing_and_ride_nothing():
   # A one-way platform (0), a box at its right side (1), one just under it (2), one on it (3).
   w = make([[0.0, 0.0], [1.5, 0.0], [0.0, -0.6], [0.0, 0.6]], [[1.0, 0.1]] + [[0.5, 0.5]] * 3,

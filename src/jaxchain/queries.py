@@ -21,7 +21,8 @@ others are O(n).
 
 Host input is checked where it is concrete (a `ValueError` names the argument);
 traced input (inside `jit` or `vmap`) is not checked, and a bad value there gives a
-documented neutral answer instead (a zero ray direction hits nothing, say).
+documented neutral answer instead (a zero ray direction hits nothing, a body index out
+of range moves nothing: it never wraps around to the last body).
 """
 
 from __future__ import annotations
@@ -470,7 +471,8 @@ def move_and_slide(world: World, body, velocity, dt, *, skin: float = SKIN
 
   Args:
     world: a single world.
-    body: the index of the body to move (an active body; traced values allowed).
+    body: the index of the body to move (an active body; traced values allowed: one
+      out of range or inactive moves nothing, and the info reports no hit).
     velocity: `[2]` velocity to move with.
     dt: the time step, `> 0`.
     skin: contact tolerance (static; the step's `Config.skin` by default).
@@ -540,18 +542,29 @@ def _sweep(world: World, obstacle: jax.Array, p: jax.Array, h: jax.Array, axis: 
   return jnp.where(hit, face, p[axis] + move), hit, jnp.where(hit, j, -1)
 
 
+def _live(world: World, i: jax.Array) -> tuple[jax.Array, jax.Array]:
+  """`(index, live)`: a traced body index clamped into range, and whether it names an
+  active body (an index out of range names none: it must not wrap to the last body)."""
+  n = world.num_bodies
+  ok = (i >= 0) & (i < n)
+  i = jnp.where(ok, i, 0)
+  return i, ok & world.active[i]
+
+
 @functools.partial(jax.jit, static_argnames="skin")
 def _move_and_slide(world: World, i: jax.Array, v: jax.Array, dt: jax.Array,
                     skin: float) -> tuple[World, SlideInfo]:
+  i, live = _live(world, i)
   obstacle = _obstacles(world, i)
   p, h = world.pos[i], world.half[i]
-  move = jnp.where(world.active[i], v * dt, 0.0)
+  move = jnp.where(live, v * dt, 0.0)
   x, hit_x, j_x = _sweep(world, obstacle, p, h, 0, move[0], skin)
   p = p.at[0].set(x)
   y, hit_y, j_y = _sweep(world, obstacle, p, h, 1, move[1], skin)
   p = p.at[1].set(y)
   vel = jnp.where(jnp.stack([hit_x, hit_y]), 0.0, v)
-  vel = jnp.where(world.active[i], vel, world.vel[i])
+  vel = jnp.where(live, vel, world.vel[i])
+  p = jnp.where(live, p, world.pos[i])
   on_floor = hit_y & (move[1] < 0)
   info = SlideInfo(on_floor=on_floor, on_wall=hit_x, on_ceiling=hit_y & (move[1] > 0),
                    hit_x=j_x, hit_y=j_y,
@@ -563,8 +576,8 @@ def _move_and_slide(world: World, i: jax.Array, v: jax.Array, dt: jax.Array,
 # --- drive_platforms ---------------------------------------------------------------------
 
 
-def drive_platforms(world: World, platforms, velocity, *, depth: int = 8,
-                    skin: float = SKIN) -> World:
+def drive_platforms(world: World, platforms, velocity, *, depth: int | None = None,
+                    skin: float = SKIN, left_behind: bool = False):
   """Sets the velocity of kinematic platforms and carries their riders by the change.
 
   A kinematic platform is an immovable body (mass inf) that moves by its velocity in
@@ -577,7 +590,9 @@ def drive_platforms(world: World, platforms, velocity, *, depth: int = 8,
   Carried: an active movable body whose support (what it stands on:
   `touching_bodies`' `-y` row, the one-way rule included; of several, the one under
   the widest part of its bottom face, ties to the lower index) is a driven platform,
-  or is itself carried, up to `depth` bodies high. Both velocity components change
+  or is itself carried: a stack of any height by default, or up to `depth` bodies high
+  (each level one hop, so `depth` bounds the work). With a `depth`, the bodies of a
+  higher stack keep their velocity: `left_behind=True` returns which. Both velocity components change
   (a platform that starts down takes its riders down with it). A body touching a
   platform only from the side or from below is not carried, nor is an immovable one (a
   character moved by `move_and_slide` rides with `SlideInfo.floor_velocity`).
@@ -593,15 +608,21 @@ def drive_platforms(world: World, platforms, velocity, *, depth: int = 8,
     platforms: the bodies to drive: one index, or an `[n]` bool mask. Movable bodies
       in it are ignored (a concrete one is an error).
     velocity: `[2]` for all of them, or `[n, 2]` (row i for body i).
-    depth: how many bodies high a stack is carried (static).
+    depth: how many bodies high a stack is carried (static); None (default): any
+      height (`n - 1` hops).
     skin: contact tolerance (static).
+    left_behind: also return which bodies a `depth` left behind (static).
 
   Returns:
-    The world with the platforms' and their riders' velocities updated.
+    The world with the platforms' and their riders' velocities updated; with
+    `left_behind`, `(world, left)`: `left` `[n]` bool, the bodies standing on a driven
+    stack higher than `depth` (carried by the whole stack, not by this call; all
+    False without a `depth`).
 
   Raises:
     ValueError: for a concrete platform index out of range, a mask of the wrong shape,
-      a movable platform, or a velocity that is not finite `[2]` or `[n, 2]`.
+      a movable platform, a velocity that is not finite `[2]` or `[n, 2]`, or a
+      `depth` that is not None or an integer >= 0.
 
   Examples:
     >>> import jaxchain as jc
@@ -634,9 +655,12 @@ def drive_platforms(world: World, platforms, velocity, *, depth: int = 8,
     raise ValueError(f"drive_platforms: velocity must be finite, of shape (2,) or ({n}, 2), got "
                      f"{vel.shape}")
   velocity = jnp.broadcast_to(jnp.asarray(velocity, world.vel.dtype), (n, 2))
-  if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or depth < 0:
-    raise ValueError(f"drive_platforms: depth must be an integer >= 0, got {depth!r}")
-  return _drive_platforms(world, platforms, velocity, int(depth), float(skin))
+  if depth is not None and (isinstance(depth, bool) or not isinstance(depth, (int, np.integer))
+                            or depth < 0):
+    raise ValueError(f"drive_platforms: depth must be None or an integer >= 0, got {depth!r}")
+  hops = max(n - 1, 0) if depth is None else min(int(depth), max(n - 1, 0))
+  world, left = _drive_platforms(world, platforms, velocity, hops, float(skin), bool(left_behind))
+  return (world, left) if left_behind else world
 
 
 def _supports(world: World, skin: float) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -651,21 +675,26 @@ def _supports(world: World, skin: float) -> tuple[jax.Array, jax.Array, jax.Arra
   return jnp.any(below, axis=-1), best, below
 
 
-@functools.partial(jax.jit, static_argnames=("depth", "skin"))
-def _drive_platforms(world: World, platforms: jax.Array, velocity: jax.Array, depth: int,
-                     skin: float) -> World:
-  if world.num_bodies == 0:
-    return world
+@functools.partial(jax.jit, static_argnames=("hops", "skin", "report"))
+def _drive_platforms(world: World, platforms: jax.Array, velocity: jax.Array, hops: int,
+                     skin: float, report: bool) -> tuple[World, jax.Array]:
+  n = world.num_bodies
+  if n == 0:
+    return world, jnp.zeros((0,), bool)
   driven = platforms & world.active & (world.inv_mass == 0)
   change = jnp.where(driven[:, None], velocity - world.vel, 0.0)
   stands, best, _ = _supports(world, skin)
   carried = stands & world.movable
 
-  def hop(_, dv):
+  def hop(_, dv):  # One more body high: each carried body takes its support's change.
     return jnp.where(carried[:, None], dv[best], change)
 
-  dv = jax.lax.fori_loop(0, depth, hop, change)
-  return dataclasses.replace(world, vel=world.vel + dv)
+  dv = jax.lax.fori_loop(0, hops, hop, change)
+  left = jnp.zeros((n,), bool)
+  if report and hops < n - 1:  # The whole stack (a support chain has at most n bodies).
+    full = jax.lax.fori_loop(0, n - 1 - hops, hop, dv)
+    left = jnp.any(full != dv, axis=-1)
+  return dataclasses.replace(world, vel=world.vel + dv), left
 
 
 # --- drop_through ------------------------------------------------------------------------
@@ -686,7 +715,8 @@ def drop_through(world: World, body, *, skin: float = SKIN) -> tuple[World, jax.
 
   Args:
     world: a single world.
-    body: the index of the body (an active body; traced values allowed).
+    body: the index of the body (an active body; traced values allowed: one out of
+      range or inactive drops nothing).
     skin: contact tolerance (static).
 
   Returns:
@@ -707,9 +737,10 @@ def drop_through(world: World, body, *, skin: float = SKIN) -> tuple[World, jax.
 
 @functools.partial(jax.jit, static_argnames="skin")
 def _drop_through(world: World, i: jax.Array, skin: float) -> tuple[World, jax.Array]:
+  i, live = _live(world, i)
   _, _, below = _supports(world, skin)
   row = below[i]  # [n]
-  dropped = jnp.any(row) & ~jnp.any(row & ~world.one_way) & world.active[i]
+  dropped = jnp.any(row) & ~jnp.any(row & ~world.one_way) & live
   h = world.half[i, 1]
   top = world.pos[:, 1] + world.half[:, 1]
   bottom = top - (geometry.ONE_WAY_MARGIN + DROP_EXTRA) * (world.half[:, 1] + h)
