@@ -65,11 +65,23 @@ def _gym_space(space):
 
 
 def _as_action(space, action, batch: tuple[int, ...]) -> jax.Array:
-  """A host action as the jax array the env expects (its dtype; shape checked there)."""
+  """A host action as the jax array the env expects, never cast silently: a discrete
+  action must be integers (an int32 cannot hold is out of range, -1: the env flags it
+  invalid), a continuous one real numbers (ints exactly, floats as float32)."""
   action = np.asarray(action)
+  discrete = hasattr(space, "n")
+  if discrete and action.dtype.kind not in "iu":
+    raise TypeError(f"action: Discrete({space.n}) takes integer actions, got {action.dtype} "
+                    f"{action.tolist()!r} (floats, strings and bools are not cast: give ints)")
+  if not discrete and action.dtype.kind not in "iuf":
+    raise TypeError(f"action: Box({space.low}, {space.high}, {tuple(space.shape)}) takes real "
+                    f"numbers, got {action.dtype} {action.tolist()!r}")
   want = batch + tuple(space.shape)
   if action.shape != want:
     raise ValueError(f"action: expected shape {want}, got {action.shape}")
+  if discrete:
+    inside = (action >= 0) & (action < space.n)
+    action = np.where(inside, action.astype(np.int64, casting="unsafe"), -1)
   return jnp.asarray(action.astype(np.dtype(space.dtype), copy=False))
 
 
@@ -78,13 +90,40 @@ def _host_info(info: dict) -> dict:
   return {k: np.array(v) for k, v in info.items()}
 
 
+def _check_seed(seed) -> int | None:
+  """A seed as every adapter takes it: None, or an int >= 0 of any size (Gymnasium's
+  rule; a Python or NumPy int, not a bool); anything else is a ValueError."""
+  if seed is None:
+    return None
+  if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)) and seed >= 0:
+    return int(seed)
+  raise ValueError(f"seed: expected an int >= 0 (any size) or None, got {seed!r}")
+
+
+def _seed_key(seed: int) -> jax.Array:
+  """The JAX key of a seed `>= 0`: `jax.random.key(seed)` below 2**32 (as always); above,
+  the low 32 bits' key with each further 32 bits folded in, so every bit counts
+  (`jax.random.key` alone takes an int64, and without x64 keeps 32 bits)."""
+  key = jax.random.key(seed & 0xFFFFFFFF)
+  seed >>= 32
+  while seed:
+    key = jax.random.fold_in(key, seed & 0xFFFFFFFF)
+    seed >>= 32
+  return key
+
+
 def _reset_key(env, seed: int | None) -> jax.Array:
-  """The key a Gymnasium `reset` uses: from `seed`, else split from the env's own key
-  (after a first reset), else from the env's `np_random` (seeded by Gymnasium)."""
+  """The key a Gymnasium `reset` uses: from `seed`; else, right after a step ended the
+  episode, the key that step drew for the next episode (what `env.step`'s auto-reset,
+  gymnax's and the vector adapters' use); else split from the env's own key (after a
+  first reset), else from the env's `np_random` (seeded by Gymnasium)."""
+  pending, env._next_reset = env._next_reset, None
+  if seed is None and pending is not None:
+    return pending
   if seed is None and env._key is not None:
     env._key, key = jax.random.split(env._key)
   else:
-    env._key, key = jax.random.split(jax.random.key(
+    env._key, key = jax.random.split(_seed_key(
         seed if seed is not None else int(env.np_random.integers(2**31))))
   return key
 
@@ -117,16 +156,14 @@ def _seed_list(seed, num_envs: int) -> list:
   (env i from `s + i`), or a list of `num_envs` ints or Nones."""
   if seed is None:
     return [None] * num_envs
-  if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-    return [int(seed) + i for i in range(num_envs)]
+  if not isinstance(seed, (list, tuple)):
+    seed = _check_seed(seed)
+    return [seed + i for i in range(num_envs)]
   seeds = list(seed)
   if len(seeds) != num_envs:
     raise ValueError(f"seed: a list of {num_envs} seeds (one per env, None to go on), got "
                      f"{len(seeds)}")
-  for s in seeds:
-    if s is not None and not (isinstance(s, (int, np.integer)) and not isinstance(s, bool)):
-      raise TypeError(f"seed: ints or None, got {s!r}")
-  return [None if s is None else int(s) for s in seeds]
+  return [_check_seed(s) for s in seeds]
 
 
 # The per-env metadata of the batched adapters (a `GymnasiumEnv`'s).
@@ -137,10 +174,15 @@ class _Batched:
   """The host side shared by `GymnasiumVectorEnv` and `SB3VecEnv`: `num_envs` worlds
   stepped by one jitted, vmapped `env.step` (auto-reset inside), one JAX key per env.
 
-  Env i seeded with `s` draws what a `GymnasiumEnv` seeded with `s` draws (its reset
-  key and each step's key are split from `jax.random.key(s)` the same way), so a
-  batch is the single envs side by side. The jitted functions are rebuilt after
-  unpickling (pickle and `copy.deepcopy` carry the env, params, keys and state).
+  Env i seeded with `s` draws what a `GymnasiumEnv` seeded with `s` draws, across
+  episodes too: its reset key and each step's key are split from the seed's key the
+  same way, and the auto-reset starts the next episode from the key the step drew for
+  it, as a `GymnasiumEnv` `reset()` after its episode ended does (so SB3's
+  `DummyVecEnv` and Gymnasium's `SyncVectorEnv` over single envs give the same
+  episodes; observations agree to an ulp of `t / max_steps`, which the vmapped step
+  rounds differently on some steps). Seeds are `_check_seed`'s: ints >= 0 of any size.
+  The jitted functions are rebuilt after unpickling (pickle and `copy.deepcopy` carry
+  the env, params, keys and state).
   """
 
   _JITTED = ("_reset_fn", "_step_fn", "_render_fn")
@@ -194,7 +236,7 @@ class _Batched:
     (after a first reset), else a seed drawn from `rng`."""
     if self._keys is not None and all(s is None for s in seeds):
       return self._keys
-    keys = [jax.random.key(s) if s is not None else
+    keys = [_seed_key(s) if s is not None else
             self._keys[i] if self._keys is not None else jax.random.key(int(rng.integers(2**31)))
             for i, s in enumerate(seeds)]
     return jnp.stack(keys)

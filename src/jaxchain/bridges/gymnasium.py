@@ -11,8 +11,9 @@ import numpy as np
 
 from jaxchain import env as env_lib
 from jaxchain.bridges.common import (GYMNASIUM_IDS, _SINGLE_METADATA, _as_action, _Batched,
-                                     _check_render_mode, _gym_space, _host_info, _make,
-                                     _missing, _public, _reset_key, _seed_list, _step_key)
+                                     _check_render_mode, _check_seed, _gym_space, _host_info,
+                                     _make, _missing, _public, _reset_key, _seed_list,
+                                     _step_key)
 
 
 @functools.cache
@@ -27,10 +28,14 @@ def _gymnasium_classes():
   class GymnasiumEnv(gymnasium.Env):
     """One jaxchain world as a `gymnasium.Env` (NumPy in and out, no auto-reset).
 
-    `reset(seed=s)` seeds a JAX key (with no seed: drawn from `np_random`), each
-    `step` splits it; `reset` and `step` are jitted once per env. After an
-    episode ends, call `reset` (Gymnasium's contract). Picklable and deep-copyable
-    (the jitted functions are rebuilt).
+    `reset(seed=s)` seeds a JAX key (`s` an int >= 0 of any size, or None: drawn from
+    `np_random`), each `step` splits it; `reset` and `step` are jitted once per env.
+    After an episode ends, call `reset` (Gymnasium's contract): without a seed it
+    starts the next episode from the key the last step drew for it, the start
+    jaxchain's `env.step` auto-reset (and so the vector adapters and gymnax) would
+    give. Actions are never cast: a discrete one must be integers, a continuous one
+    real numbers (a `TypeError` otherwise). Picklable and deep-copyable (the jitted
+    functions are rebuilt).
 
     Args:
       env: a task name, a `jaxchain.env.Task`, or a built env.
@@ -50,6 +55,7 @@ def _gymnasium_classes():
       self.action_space = _gym_space(self._space)
       self.observation_space = _gym_space(self.env.observation_space(self.params))
       self._key = None
+      self._next_reset = None  # After a step that ended the episode: its reset key.
       self._state = None
       self._build()
 
@@ -62,10 +68,11 @@ def _gymnasium_classes():
       return {k: v for k, v in self.__dict__.items() if k not in self._JITTED}
 
     def __setstate__(self, state: dict) -> None:
-      self.__dict__.update(state)
+      self.__dict__.update({"_next_reset": None, **state})
       self._build()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+      seed = _check_seed(seed)
       super().reset(seed=seed)
       if options:
         raise ValueError(f"reset: this env takes no options, got {sorted(options)}")
@@ -73,11 +80,14 @@ def _gymnasium_classes():
       return np.asarray(obs), {}
 
     def step(self, action):
-      obs, self._state, reward, _, info = self._step(
-          _step_key(self), self._state, _as_action(self._space, action, ()), self.params)
+      action = _as_action(self._space, action, ())
+      key = _step_key(self)
+      obs, self._state, reward, _, info = self._step(key, self._state, action, self.params)
       info = _host_info(info)
-      return (np.asarray(obs), float(reward), bool(info.pop("terminated")),
-              bool(info.pop("truncated")), info)
+      terminated, truncated = bool(info.pop("terminated")), bool(info.pop("truncated"))
+      # The next episode's key, as `env.step` would draw it: for a reset() that follows.
+      self._next_reset = jax.random.split(key)[1] if terminated or truncated else None
+      return np.asarray(obs), float(reward), terminated, truncated, info
 
     def render(self):
       if self.render_mode is None or self._state is None:
@@ -101,8 +111,10 @@ def _gymnasium_classes():
 
     Like `SyncVectorEnv`: `reset(seed=s)` seeds env i with `s + i`,
     `reset(seed=[s0, s1, ...])` each env with its own (None: it goes on from its
-    key), and env i seeded with `s` is a `GymnasiumEnv` seeded with `s` (until its
-    first auto-reset); `reset(options={"reset_mask": mask})` resets only those envs.
+    key), and env i seeded with `s` is a `GymnasiumEnv` seeded with `s`, episode
+    after episode (`SyncVectorEnv` over them, same-step autoreset, gives the same
+    episodes; observations to an ulp); `reset(options={"reset_mask": mask})` resets
+    only those envs. Seeds are ints >= 0 of any size (else a ValueError).
     `call(name, ...)`, `get_attr(name)` and `set_attr(name, values)` reach each
     env's attributes: its single spaces and metadata, `params` and `render_mode`,
     else the jaxchain env's (`level_names`, `action_space(params)`, ...);

@@ -8,7 +8,7 @@ import warnings
 
 import numpy as np
 
-from jaxchain.bridges.common import _Batched, _missing, _public
+from jaxchain.bridges.common import _Batched, _check_seed, _missing, _public
 from jaxchain.bridges.gymnasium import _gymnasium_classes
 
 
@@ -33,8 +33,11 @@ def _sb3_class():
     `TimeLimit.truncated` (truncated and not terminated) and, where the episode
     ended, `terminal_observation`; the returned observation already starts the
     next episode (jaxchain's auto-reset). `seed(s)` gives env i the seed `s + i`
-    at the next `reset()` and returns the list; env i seeded with `s` draws what a
-    `GymnasiumEnv` seeded with `s` draws. `get_attr`, `set_attr`, `env_method`
+    at the next `reset()` and returns the list (`s` an int >= 0 of any size); env i
+    seeded with `s` draws what a `GymnasiumEnv` seeded with `s` draws, episode after
+    episode, so it gives what `DummyVecEnv` over `GymnasiumEnv`s gives, except that
+    observations agree to 1e-6 rather than bit for bit (the vmapped step rounds
+    `t / max_steps` one ulp apart on some steps). `get_attr`, `set_attr`, `env_method`
     reach each env's attributes as `GymnasiumVectorEnv.call` does (`set_attr`
     takes `params` or `render_mode`, for every env alike); `env_is_wrapped` is
     False (no Gymnasium wrapper sits around the worlds; `VecMonitor` gives SB3's
@@ -65,6 +68,11 @@ def _sb3_class():
       self._rng = np.random.default_rng()
       VecEnv.__init__(self, self.num_envs, self.single_observation_space,
                       self.single_action_space)
+
+    def seed(self, seed: int | None = None) -> list:
+      """SB3's rule (env i gets `seed + i` at the next `reset()`; None draws one), with
+      the seed checked as every adapter checks it (an int >= 0 of any size)."""
+      return super().seed(_check_seed(seed))
 
     def reset(self):
       if any(self._options):
