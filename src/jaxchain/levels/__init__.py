@@ -24,6 +24,16 @@ columns left to right); a character making several bodies (`+`, `*`) makes them 
 the order its legend entry lists them; Tiled layers come in file order (objects in
 the order of the layer's object array). Use `Level.tags`, not indices, to find
 bodies.
+
+Limits: a loader reads regular files of at most `MAX_FILE_BYTES` (UTF-8, a byte-order
+mark dropped), maps of at most `MAX_TILES` cells with group layers at most
+`MAX_GROUP_DEPTH` deep, and makes at most `max_bodies` (`MAX_BODIES`) bodies, counted
+before they are built; `parse_moves` expands at most `max_moves` (`MAX_MOVES`). Past a
+limit, a ValueError names the file and the limit (docs/levels.md, "Limits").
+
+Modules: `level` (`Level`, `Tile`, the categories, `rectangles`), one per format
+(`ascii`, `xsb`: collections and solutions, `tiled`: the JSON structure, `tmx`: XML
+into it), `files` (reading files, shipped levels) and `loader` (`load`).
 """
 
 from jaxchain.levels.ascii import LEGEND, parse_ascii
