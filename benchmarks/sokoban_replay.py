@@ -3,8 +3,9 @@
 The 155 levels of David W. Skinner's Microban and their published solutions
 (`tests/data/sokoban/`, see its README) are replayed in the physics: levels sorted by
 body count and cut into batches (one env per batch, its slots sized by the batch);
-each batch is one jitted `jax.vmap` over its levels of a `lax.scan` of
-`env.step_env` over the solution's moves (padded with noops to the batch's longest).
+each batch is one jitted `jc.env.make_replay` (a `jax.vmap` over its levels of a scan
+of `env.step_env` over the solution's moves, padded with noops to the batch's longest:
+`jc.env.sokoban_actions`).
 Checked per level, exactly (float32 equality): the player ends on the cell a
 plain-Python grid Sokoban puts it, every box ends on a goal, and the world is at
 rest with no status bit set. Compile time is measured apart (ahead-of-time
@@ -30,7 +31,6 @@ from jaxchain import levels
 from _bench import add_common_args, machine, out_dir
 
 DATA = pathlib.Path(__file__).resolve().parent.parent / "tests" / "data" / "sokoban"
-ACTION = {"l": 1, "r": 2, "d": 3, "u": 4}
 STEP = {"l": (0, -1), "r": (0, 1), "d": (1, 0), "u": (-1, 0)}
 
 
@@ -77,26 +77,15 @@ def batch_run(batch):
                      terminate=jc.env.sokoban_terminate,
                      params=jc.env.PushBoxParams(jitter=0.0, max_steps=100_000))
   env, params = jc.env.make(task, dt=1 / 64)
-  steps = max(len(m) for *_, m in batch)
-  actions = np.zeros((len(batch), steps), np.int32)
-  for k, (*_, m) in enumerate(batch):
-    actions[k, :len(m)] = [ACTION[ch.lower()] for ch in m]
-
-  def replay(level, acts):
-    key = jax.random.key(0)
-    state = env.reset_level(key, params, level)
-
-    def body(state, action):
-      _, state, _, _, _ = env.step_env(key, state, action, params)
-      return state, None
-    return jax.lax.scan(body, state, acts)[0]
-
+  actions = jc.env.sokoban_actions([m for *_, m in batch])
+  steps = actions.shape[1]
+  replay = jc.env.make_replay(env, params)
   args = (jnp.arange(len(batch), dtype=jnp.int32), jnp.asarray(actions))
   t0 = time.perf_counter()
-  compiled = jax.jit(jax.vmap(replay)).lower(*args).compile()
+  compiled = jax.jit(replay).lower(*args).compile()
   compile_s = time.perf_counter() - t0
   t0 = time.perf_counter()
-  state = jax.block_until_ready(compiled(*args))
+  state, _, _ = jax.block_until_ready(compiled(*args))
   run_s = time.perf_counter() - t0
   world = jax.device_get(state.world)
   box, goal = env.slots_of("box"), env.slots_of("goal")
@@ -144,11 +133,11 @@ def write(rows, args, header, wall_s) -> None:
       f"`{command}`, {header}; {wall_s:.0f} s in all.",
       "",
       "Each batch (levels sorted by body count) is one env (`jc.env.make(task, dt=1/64)`, "
-      "`SokobanMoves()`: 5 physics steps per move) and one jitted `vmap` over its levels of a "
-      "`lax.scan` of `env.step_env` over the moves, padded with noops to the batch's longest "
-      "solution; compile apart, one timed call. Solved: every box on a goal, exactly (float32 "
-      "equality), the world at rest, no status bit, and the grid replay solved too. Player "
-      "exact: the player's final centre equals the grid replay's cell.",
+      "`SokobanMoves()`: 5 physics steps per move) and one jitted `jc.env.make_replay` (a "
+      "`vmap` over its levels of a scan of `env.step_env` over the moves), padded with noops "
+      "to the batch's longest solution; compile apart, one timed call. Solved: every box on a "
+      "goal, exactly (float32 equality), the world at rest, no status bit, and the grid replay "
+      "solved too. Player exact: the player's final centre equals the grid replay's cell.",
       "",
       "| first level | levels | bodies | T (moves) | moves | pushes | compile s | run s | "
       "env-steps/s (padded) | solved | player exact |",

@@ -8,6 +8,7 @@ in NumPy, and the single env passes Gymnasium's own checker. Tasks are tiny
 
 import copy
 import doctest
+import pathlib
 import pickle
 import subprocess
 import sys
@@ -43,6 +44,28 @@ def test_import_jaxchain_needs_neither_package():
 def test_doctests():
   result = doctest.testmod(bridges, optionflags=doctest.ELLIPSIS)
   assert result.attempted > 0 and result.failed == 0
+
+
+def test_one_module_per_client():
+  """`jaxchain.bridges` is a package (DESIGN.md section 7): one module per client, what
+  they share in `common`, the public names re-exported by `__init__` (the classes
+  lazily, under `jaxchain.bridges.<name>` for pickle)."""
+  import jaxchain.bridges.common
+  import jaxchain.bridges.gymnasium
+  import jaxchain.bridges.gymnax
+  import jaxchain.bridges.sb3
+  root = pathlib.Path(bridges.__file__).parent
+  assert root.name == "bridges" and bridges.__file__.endswith("__init__.py")
+  assert sorted(p.name for p in root.glob("*.py")) == [
+      "__init__.py", "common.py", "gymnasium.py", "gymnax.py", "sb3.py"]
+  assert jaxchain.bridges.gymnax.register_gymnax is bridges.register_gymnax
+  assert jaxchain.bridges.gymnasium.register_gymnasium is bridges.register_gymnasium
+  for name in ("GymnaxEnv", "GymnasiumEnv", "GymnasiumVectorEnv"):
+    cls = getattr(bridges, name)
+    assert (cls.__module__, cls.__qualname__) == ("jaxchain.bridges", name)
+  assert set(bridges.__all__) == {
+      "GymnaxEnv", "GymnaxState", "GymnasiumEnv", "GymnasiumVectorEnv", "SB3VecEnv",
+      "GYMNAX_IDS", "GYMNASIUM_IDS", "register_gymnax", "register_gymnasium"}
 
 
 def test_unknown_attribute():
@@ -289,6 +312,83 @@ def test_vector_env_seeds_each_env_like_a_single_env(vector_pair):
     venv.reset(options={"level": 2})
   with pytest.raises(ValueError, match="reset_mask"):
     venv.reset(options={"reset_mask": np.zeros(3, bool)})
+
+
+def test_one_seed_rule_for_every_env(vector_pair):
+  """A seed is an int >= 0 of any size (Gymnasium's rule; all its bits count) or None,
+  for the single env and the vector env alike; anything else is one ValueError."""
+  env, params, venv = vector_pair
+  single = bridges.GymnasiumEnv(env, params)
+  bad = r"seed: expected an int >= 0 \(any size\) or None, got "
+  for seed in (-1, -5, 1.5, "3", True, np.float64(2.0)):
+    with pytest.raises(ValueError, match=bad):
+      single.reset(seed=seed)
+    with pytest.raises(ValueError, match=bad):
+      venv.reset(seed=seed)
+  for seeds in ([-1, 3, 0], [0, 2.0, 1], [0, None, "1"]):
+    with pytest.raises(ValueError, match=bad):
+      venv.reset(seed=seeds)
+  # Large seeds work, use all their bits, and env i still draws what a single env does.
+  big = [2**32, 2**63, 2**64]
+  starts = [single.reset(seed=s)[0] for s in [0] + big]
+  assert len({o.tobytes() for o in starts}) == 4  # 2**32 is not 0 (nor 2**64).
+  obs, _ = venv.reset(seed=2**63)  # Env i: 2**63 + i.
+  np.testing.assert_array_equal(obs[0], starts[2])
+  np.testing.assert_array_equal(obs[1], single.reset(seed=2**63 + 1)[0])
+  obs, _ = venv.reset(seed=big)
+  np.testing.assert_array_equal(obs, np.stack(starts[1:]))
+  # Below 2**32 a seed is the JAX key it always was (the reference of the test above).
+  first = single.reset(seed=7)[0]
+  ref, _ = env.reset(jax.random.split(jax.random.key(7))[1], params)
+  np.testing.assert_array_equal(first, ref)
+
+
+def test_discrete_actions_must_be_integers(vector_pair):
+  """A float or a string given as a discrete action is refused (no silent cast: 2.7
+  was action 2, '1' action 1); an integer out of range is flagged invalid (the env
+  truncates), also one that int32 cannot hold. Continuous actions take real numbers."""
+  env = bridges.GymnasiumEnv(DISCRETE, max_steps=MAX_STEPS)
+  env.reset(seed=0)
+  wrong = r"action: Discrete\(\d+\) takes integer actions, got "
+  for action in (2.7, "1", np.float32(2.0), True, np.array(1.0), None):
+    with pytest.raises(TypeError, match=wrong):
+      env.step(action)
+  *_, truncated, info = env.step(np.int64(2**40))  # Not 0 (its int32 cast).
+  assert bool(info["invalid_action"]) and truncated
+  env.reset(seed=0)
+  *_, truncated, info = env.step(np.uint8(2))
+  assert not info["invalid_action"] and not truncated
+  # The vector adapters share the rule (continuous here: numbers, never strings or bools).
+  _, _, venv = vector_pair
+  venv.reset(seed=0)
+  for actions in (np.full((3, 2), "0.5"), np.ones((3, 2), bool), np.ones((3, 2), complex)):
+    with pytest.raises(TypeError, match=r"action: Box\(-1.0, 1.0, \(2,\)\) takes real numbers"):
+      venv.step(actions)
+  assert not venv.step(np.ones((3, 2), np.int64))[-1]["invalid_action"].any()
+
+
+def test_vector_env_resets_as_sync_vector_env_over_single_envs(vector_pair):
+  """Across episode ends (SAME_STEP autoreset), the vector env gives what Gymnasium's
+  SyncVectorEnv over GymnasiumEnvs gives: there each env is reset() after its episode
+  ends and starts from the key its last step drew, as the vmapped step does."""
+  env, params, venv = vector_pair
+  sync = gymnasium.vector.SyncVectorEnv([lambda: bridges.GymnasiumEnv(env, params)] * 3,
+                                        autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+  np.testing.assert_array_equal(venv.reset(seed=9)[0], sync.reset(seed=9)[0])
+  rng = np.random.default_rng(2)
+  ends = 0
+  for t in range(4 * MAX_STEPS):
+    actions = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
+    obs, reward, terminated, truncated, info = venv.step(actions)
+    s_obs, s_reward, s_terminated, s_truncated, s_info = sync.step(actions)
+    np.testing.assert_allclose(obs, s_obs, rtol=0, atol=1e-6)  # t / max_steps: an ulp.
+    np.testing.assert_array_equal(reward, s_reward)
+    np.testing.assert_array_equal(terminated | truncated, s_terminated | s_truncated)
+    if "final_obs" in info:
+      ends += int(info["_final_obs"].sum())
+      for i in np.flatnonzero(info["_final_obs"]):
+        np.testing.assert_allclose(info["final_obs"][i], s_info["final_obs"][i], atol=1e-6)
+  assert ends == 12
 
 
 def test_vector_env_call_get_attr_set_attr(vector_pair):

@@ -1,5 +1,6 @@
 """Levels: ASCII (Sokoban XSB and platformer characters) and Tiled JSON maps."""
 
+import codecs
 import collections
 import doctest
 import json
@@ -564,9 +565,57 @@ def test_load_picks_the_format_by_extension(tmp_path):
     levels.load(tmp_path / "none.txt")
 
 
+def _same_level(a, b, names=True):
+  assert (dict(a.tags), a.bounds, a.gravity) == (dict(b.tags), b.bounds, b.gravity)
+  assert a.name == b.name or not names
+  for field in ("pos", "half", "mass", "vel", "friction", "one_way", "sensor", "category",
+                "mask"):
+    np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
+
+
+BOM = codecs.BOM_UTF8
+
+
+def test_a_byte_order_mark_is_not_part_of_the_level(tmp_path):
+  """Files saved "UTF-8 with BOM", with CRLF line ends, as editors on Windows save them,
+  load as without the mark: a collection that starts with a map keeps that map's top
+  wall row (not a title '\ufeff#####' and a room open at the top), and a one-map .xsb,
+  a .txt, a .tmj, a .tmx, their external tilesets and templates load."""
+  rooms = "#####\r\n#@$.#\r\n#####\r\n\r\n######\r\n#@ $.#\r\n######\r\n"
+  (tmp_path / "c.xsb").write_bytes(BOM + rooms.encode())
+  got = levels.load_collection(tmp_path / "c.xsb")
+  assert [lv.name for lv in got] == ["c 1", "c 2"]
+  assert got[0].bounds == (0, 0, 5, 3) and got[0].num_bodies == 7  # 4 walls, @, $, .
+  for a, b in zip(got, levels.parse_xsb_collection(rooms.replace("\r", ""), name="c")):
+    _same_level(a, b)
+  one = "#####\r\n#@$.#\r\n#####\r\n"
+  for name in ("one.xsb", "one.txt"):
+    (tmp_path / name).write_bytes(BOM + one.encode())
+    (tmp_path / ("plain_" + name)).write_text(one.replace("\r", ""))
+    a, b = levels.load(tmp_path / name), levels.load(tmp_path / ("plain_" + name))
+    _same_level(a, b, names=False)
+    assert a.num_bodies == 7
+  _same_level(levels.parse_ascii("\ufeff" + one), levels.parse_ascii(one))
+  # Tiled: the map, its external tilesets (.tsx, .tsj) and a template, each with a BOM.
+  for ext in ("tsx", "tsj"):
+    (tmp_path / f"ledges.{ext}").write_bytes(BOM + (DATA / f"ledges.{ext}").read_bytes())
+    (tmp_path / f"m_{ext}.tmj").write_bytes(BOM + (DATA / f"external_{ext}.tmj").read_bytes())
+    a, b = levels.load(tmp_path / f"m_{ext}.tmj"), levels.load(DATA / f"external_{ext}.tmj")
+    _same_level(a, b, names=False)
+    assert a.num_bodies == 2 and a.one_way.tolist() == [True, False]
+  (tmp_path / "crate.tx").write_bytes(BOM + b'<template><object name="crate" width="16" '
+                                      b'height="16"/></template>')
+  (tmp_path / "m.tmx").write_bytes(BOM + (
+      '<?xml version="1.0" encoding="UTF-8"?>\r\n<map orientation="orthogonal" width="4" '
+      'height="4" tilewidth="16" tileheight="16"><objectgroup name="o">'
+      '<object id="1" template="crate.tx" x="16" y="32"/></objectgroup></map>').encode())
+  lv = levels.load(tmp_path / "m.tmx")
+  assert lv.tags["crate"] == (0,) and lv.pos.tolist() == [[1.5, 1.5]]
+
+
 def test_shipped_levels_load_by_name():
   assert levels.names() == ["platformer1", "platformer2", "sokoban1", "sokoban2", "sokoban3"]
-  shipped = pathlib.Path(levels.__file__).parent / "data" / "levels"
+  shipped = pathlib.Path(jc.__file__).parent / "data" / "levels"
   for name in levels.names():
     by_name = levels.load(name)
     (path,) = shipped.glob(f"{name}.*")
@@ -679,6 +728,38 @@ def test_a_loaded_level_settles_on_its_merged_floor():
   assert int(final.status) == 0
 
 
+def test_one_module_per_format():
+  """`jaxchain.levels` is a package (DESIGN.md section 7): the shared `Level` and one
+  module per format, the public names re-exported as they were by the one module."""
+  root = pathlib.Path(levels.__file__).parent
+  assert root.name == "levels" and levels.__file__.endswith("__init__.py")
+  assert sorted(p.name for p in root.glob("*.py")) == [
+      "__init__.py", "ascii.py", "files.py", "level.py", "loader.py", "tiled.py", "tmx.py",
+      "xsb.py"]
+  where = {"Level": "level", "Tile": "level", "rectangles": "level", "parse_ascii": "ascii",
+           "parse_xsb_collection": "xsb", "load_collection": "xsb", "parse_moves": "xsb",
+           "load_tiled": "tiled", "tmx_to_json": "tmx", "load": "loader", "names": "files"}
+  for name, module in where.items():
+    assert getattr(levels, name).__module__ == f"jaxchain.levels.{module}", name
+  assert set(levels.__all__) == {
+      "ALL", "BOX", "BOX_TILE", "CATEGORIES", "DEFAULT_MASS", "FLAG_TILE", "FLIP_BITS",
+      "GID_MASK", "GOAL_TILE", "HAZARD_TILE", "HEAVY_TILE", "LEGEND", "Level", "MAX_BODIES",
+      "MAX_FILE_BYTES", "MAX_GROUP_DEPTH", "MAX_MOVES", "MAX_TILES", "PLATFORM_TILE",
+      "PLAYER", "PLAYER_TILE", "POINT_HALF", "SENSOR", "SLAB", "SOLID", "Tile", "WALL", "load",
+      "load_collection", "load_tiled", "names", "parse_ascii", "parse_moves",
+      "parse_xsb_collection", "rectangles", "tmx_to_json"}
+  assert all(hasattr(levels, name) for name in levels.__all__)
+  # No module is the old 1,684-line file again.
+  assert max(len(p.read_text().splitlines()) for p in root.glob("*.py")) < 800
+
+
 def test_doctests():
-  result = doctest.testmod(levels, optionflags=doctest.ELLIPSIS)
-  assert result.attempted > 10 and result.failed == 0
+  """Every module of the package (`testmod(levels)` alone sees only the re-exports'
+  package docstring: doctest skips objects defined in another module)."""
+  attempted = 0
+  for module in (levels, levels.level, levels.ascii, levels.xsb, levels.tmx, levels.tiled,
+                 levels.files, levels.loader):
+    result = doctest.testmod(module, optionflags=doctest.ELLIPSIS)
+    assert result.failed == 0, module.__name__
+    attempted += result.attempted
+  assert attempted > 30

@@ -199,8 +199,11 @@ def test_raycast_rules_inside_graze_reach_mask_ignore():
   assert _hit(jc.raycast(w, [3.5, 1.0], [1.0, 0.0])) == (False, -1, INF, [3.5, 1.0], [0.0, 0.0])
   # From inside the floor, straight down: nothing; up, out of the floor: the box above.
   assert jc.raycast(w, [1.0, -0.5], [0.0, 1.0]).body == 2
-  # Along the floor's top face (and the wall's bottom face): grazing is no hit.
-  assert not jc.raycast(w, [-4.0, 0.0], [1.0, 0.0]).hit
+  # Along the floor's top face: grazing is no hit, where nothing stands on it (left), and
+  # the base of the wall that stands on it (right: there the ray is between the two).
+  assert not jc.raycast(w, [-4.0, 0.0], [-1.0, 0.0]).hit
+  assert not jc.raycast(w, [3.5, 2.0], [1.0, 0.0]).hit  # Along the wall's top face.
+  assert _hit(jc.raycast(w, [-4.0, 0.0], [1.0, 0.0])) == (True, 1, 7.0, [3.0, 0.0], [-1.0, 0.0])
   assert jc.raycast(w, [-4.0, 1e-3], [1.0, 0.0]).body == 1  # Just above it: the wall.
   # Starting on a face, pointing in: distance 0; pointing out: nothing.
   assert _hit(jc.raycast(w, [3.0, 1.0], [1.0, 0.0]))[:3] == (True, 1, 0.0)
@@ -214,6 +217,48 @@ def test_raycast_rules_inside_graze_reach_mask_ignore():
   assert jc.raycast(w, [0.0, 0.5], [1.0, 0.0], ignore=2).body == 1
   skip = jnp.zeros(CAP, bool).at[jnp.array([1, 2])].set(True)
   assert not jc.raycast(w, [0.0, 0.5], [1.0, 0.0], ignore=skip).hit
+
+
+def test_raycast_hits_a_tiled_floor_along_its_seams():
+  """Along a seam (the ray on the faces between two bodies), the ray enters where both
+  sides are solid, as it would the one merged body: a ground check at an integer x finds
+  the floor the step and move_and_slide see as one surface."""
+  tiles = make([[-1.0, -0.5], [1.0, -0.5], [3.0, -0.25]], [[1.0, 0.5], [1.0, 0.5], [1.0, 0.25]],
+               [INF, INF, INF])  # Tiles [-2, 0], [0, 2], [2, 4], tops at y = 0.
+  merged = make([[0.0, -0.5]], [[2.0, 0.5]], [INF])
+  cast = jax.jit(jc.raycast)  # One compile for the rays below.
+  down = jnp.array([0.0, -1.0])
+  assert _hit(cast(merged, jnp.array([0.0, 2.0]), down)) == (True, 0, 2.0, [0.0, 0.0],
+                                                             [0.0, 1.0])
+  for x, body in ((0.0, 0), (2.0, 1), (-0.5, 0), (0.5, 1)):  # Seams, and inside one tile.
+    assert _hit(cast(tiles, jnp.array([x, 2.0]), down)) == (True, body, 2.0, [x, 0.0],
+                                                            [0.0, 1.0]), x
+  # The outer edges are faces of one tile only: grazing, no hit.
+  assert not cast(tiles, jnp.array([-2.0, 2.0]), down).hit
+  assert not cast(tiles, jnp.array([4.0, 2.0]), down).hit
+  # A step: at x = 2 the tile on the right is lower; the ray runs down the left tile's
+  # side and enters where both sides are solid: the right tile's top, y = -0.5.
+  steps = tiles.replace(pos=tiles.pos.at[2, 1].set(-0.75))  # Its top at y = -0.5.
+  assert _hit(cast(steps, jnp.array([2.0, 2.0]), down)) == (True, 2, 2.5, [2.0, -0.5],
+                                                            [0.0, 1.0])
+  # A wall of stacked tiles, a ray along the seam at y = 1 from the left; and a vmapped
+  # batch of rays over both kinds of seam.
+  wall = make([[3.5, 0.5], [3.5, 1.5]], [[0.5, 0.5], [0.5, 0.5]], [INF, INF])
+  assert _hit(cast(wall, jnp.array([0.0, 1.0]), jnp.array([1.0, 0.0]))) == (
+      True, 0, 3.0, [3.0, 1.0], [-1.0, 0.0])
+  xs = jnp.array([-2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.0])
+  r = jax.vmap(lambda x: jc.raycast(tiles, jnp.stack([x, 2.0]), down))(xs)
+  assert r.hit.tolist() == [False] + [True] * 5 + [False]
+  np.testing.assert_array_equal(r.distance[1:6], [2.0] * 5)
+  # A tiny direction is a direction: (1e-30, -1e-30) is normalised, not taken for zero.
+  r = cast(tiles, jnp.array([-1.5, 0.5]), jnp.array([1e-30, -1e-30]))
+  assert _hit(r)[:2] == (True, 0) and r.normal.tolist() == [0.0, 1.0]
+  np.testing.assert_allclose(r.distance, 0.5 * np.sqrt(2.0), rtol=1e-6)
+  with pytest.raises(ValueError, match="direction must be nonzero"):
+    jc.raycast(tiles, [0.0, 1.0], [1e-40, 0.0])  # Below float32's normals: flushed to 0.
+  # The seam rule keeps the gradient of the distance.
+  g = jax.grad(lambda o: jc.raycast(tiles, o, down).distance)(jnp.array([0.0, 2.0]))
+  np.testing.assert_allclose(g, [0.0, 1.0], **EXACT)
 
 
 def test_raycast_zero_direction():
@@ -325,6 +370,38 @@ def test_move_and_slide_one_way_from_below_and_from_above():
   assert w.pos[5].tolist() == [-4.0, 0.5]
 
 
+def test_move_and_slide_never_goes_deeper_into_what_it_overlaps():
+  """Sunk into a floor or a wall, the body may leave the overlap but not go deeper: along
+  the pair's contact axis (the one of smaller overlap, as in the step), a move toward
+  the obstacle's centre stops where it is; other moves are free."""
+  base = _level()
+  # Sunk 0.01 into the floor, falling (it fell through: y 0.39 -> -0.61).
+  w, info = _slide(base, [0.0, 0.49], [0.0, -60.0])
+  np.testing.assert_array_equal(w.pos[PLAYER], np.float32([0.0, 0.49]))  # Where it was.
+  assert w.vel[PLAYER].tolist() == [0.0, 0.0]
+  assert bool(info.on_floor) and int(info.hit_y) in (0, 1)
+  # Sliding along it, pressed down: x is free (the contact axis is y), y stays.
+  w, info = _slide(base, [0.0, 0.49], [30.0, -30.0])
+  np.testing.assert_allclose(w.pos[PLAYER], [0.5, 0.49], **EXACT)
+  assert not info.on_wall and bool(info.on_floor)
+  # Jumping out of it: free.
+  w, info = _slide(base, [0.0, 0.49], [0.0, 30.0])
+  np.testing.assert_allclose(w.pos[PLAYER], [0.0, 0.99], **EXACT)
+  assert not info.on_floor and not info.on_ceiling
+  # 0.1 inside the wall (left face x = 4) and moving into it (it came out the far side).
+  w, info = _slide(base, [3.6, 1.5], [120.0, 0.0])
+  np.testing.assert_array_equal(w.pos[PLAYER], np.float32([3.6, 1.5]))
+  assert bool(info.on_wall) and int(info.hit_x) == 2
+  assert w.vel[PLAYER].tolist() == [0.0, 0.0]
+  w, info = _slide(base, [3.6, 1.5], [-30.0, 0.0])  # Leaving it: free.
+  np.testing.assert_allclose(w.pos[PLAYER], [3.1, 1.5], **EXACT)
+  assert not info.on_wall
+  # A one-way ledge still lets a body below its margin pass (drop_through relies on it).
+  w, info = _slide(base, [-2.0, 1.95], [0.0, -60.0])
+  np.testing.assert_allclose(w.pos[PLAYER], [-2.0, 0.95], **EXACT)
+  assert not info.on_floor
+
+
 def test_move_and_slide_vmap_and_no_recompile():
   base = _level()
   batch = jc.stack([base, base.replace(pos=base.pos.at[2, 0].set(2.5))])  # A closer wall.
@@ -415,6 +492,42 @@ def test_drive_platforms_depth_mask_and_vmap():
     jc.drive_platforms(w, 1, [1.0, 0.0])
   with pytest.raises(ValueError, match="velocity must be finite"):
     jc.drive_platforms(w, 0, [1.0, 0.0, 0.0])
+
+
+def test_drive_platforms_carries_a_stack_of_any_height_and_reports_what_depth_leaves():
+  # A platform (0) and a stack of 12 frictionless boxes on it, at rest.
+  w = jc.World.create([[0.0, 0.0]] + [[0.0, float(k)] for k in range(1, 13)],
+                      [[2.0, 0.5]] + [[0.5, 0.5]] * 12, [INF] + [1.0] * 12, gravity=(0.0, 0.0))
+  assert jc.drive_platforms(w, 0, [2.0, 0.0]).vel[:, 0].tolist() == [2.0] * 13  # Default.
+  out, left = jc.drive_platforms(w, 0, [2.0, 0.0], depth=8, left_behind=True)
+  assert out.vel[:, 0].tolist() == [2.0] * 9 + [0.0] * 4  # Eight boxes high.
+  assert left.tolist() == [False] * 9 + [True] * 4  # The top four: reported.
+  out, left = jc.drive_platforms(w, 0, [2.0, 0.0], left_behind=True)
+  assert out.vel[:, 0].tolist() == [2.0] * 13 and not left.any()
+  with pytest.raises(ValueError, match="depth must be None or an integer >= 0"):
+    jc.drive_platforms(w, 0, [1.0, 0.0], depth=-1)
+
+
+def test_a_traced_body_index_out_of_range_moves_nothing():
+  """The host refuses body -1 (or n); under jit it is no body: nothing moves (it used to
+  move the last body, as NumPy indexing wraps -1)."""
+  unpad = lambda w, n: jax.tree.map(lambda x: x[:n] if x.ndim and x.shape[0] == CAP else x, w)
+  w, ledge = unpad(_level(), PLAYER + 1), unpad(_ledge_scene(), 3)  # Each last: the mover.
+  assert w.num_bodies == PLAYER + 1 and ledge.num_bodies == 3
+  slide_at = jax.jit(lambda w, b: jc.move_and_slide(w, b, jnp.array([60.0, -60.0]), DT))
+  drop_at = jax.jit(jc.drop_through)
+  for body in (-1, -7, PLAYER + 1, 100):
+    out, info = slide_at(w, body)
+    np.testing.assert_array_equal(out.pos, w.pos)
+    np.testing.assert_array_equal(out.vel, w.vel)
+    assert (int(info.hit_x), int(info.hit_y), bool(info.on_floor)) == (-1, -1, False)
+    out, dropped = drop_at(ledge, body)
+    assert not dropped and out.pos.tolist() == ledge.pos.tolist()
+  out, info = slide_at(w, PLAYER)  # A valid index, the same trace: it moves.
+  assert out.pos[PLAYER].tolist() == [1.0, 0.5]
+  assert bool(drop_at(ledge, 2)[1])
+  driven = jax.jit(lambda w, b: jc.drive_platforms(w, b, jnp.array([2.0, 0.0])))
+  np.testing.assert_array_equal(driven(_platform_scene(), -1).vel, _platform_scene().vel)
 
 
 def test_one_way_platform_side_and_below_touch_nothing_and_ride_nothing():

@@ -1,9 +1,9 @@
 """jaxchain.bridges.SB3VecEnv against the real Stable-Baselines3 (the sb3 extra, in dev).
 
 The adapter must give what SB3's own `DummyVecEnv` over the single Gymnasium envs
-gives (same observations, float32 rewards, dones, `terminal_observation`,
-`TimeLimit.truncated`), work with SB3's wrappers and helpers, survive pickle and
-deepcopy, and let SB3's PPO learn.
+gives (same observations to 1e-6, float32 rewards, dones, `terminal_observation`,
+`TimeLimit.truncated`, across hundreds of episode ends), work with SB3's wrappers and
+helpers, survive pickle and deepcopy, and let SB3's PPO learn.
 """
 
 import copy
@@ -49,9 +49,8 @@ def test_is_an_sb3_vec_env(made, venv):
 
 def test_steps_as_dummy_vec_env_does(made, venv):
   """Seeded alike, the jitted batch and SB3's DummyVecEnv over `GymnasiumEnv`s give the
-  same observations, float32 rewards, dones and infos through an episode end (where
-  jaxchain's auto-reset draws another start than DummyVecEnv's `reset()`: there the
-  terminal observations agree)."""
+  same observations, float32 rewards, dones and infos through an episode end (the
+  observations before it bit for bit; after resets, see the 510-step test below)."""
   env, params = made
   dummy = DummyVecEnv([lambda: bridges.GymnasiumEnv(env, params) for _ in range(N)])
   assert venv.seed(20) == dummy.seed(20)
@@ -78,6 +77,47 @@ def test_steps_as_dummy_vec_env_does(made, venv):
       np.testing.assert_array_equal(obs, d_obs)
   assert done.all() and all(info["TimeLimit.truncated"] for info in infos)
   assert all(info["episode_length"] == MAX_STEPS for info in infos)  # The episode that ended.
+
+
+def test_510_steps_with_resets_as_dummy_vec_env_does(made, venv):
+  """510 steps, 170 episode ends per env, in one rollout: the jitted batch gives what
+  DummyVecEnv over GymnasiumEnvs gives, the starts after every reset included (each
+  GymnasiumEnv, reset() by DummyVecEnv after its episode ends, starts from the key its
+  last step drew, as the batch's auto-reset does). Observations agree to 1e-6, not bit
+  for bit: the vmapped step rounds `t / max_steps` one ulp apart on some steps."""
+  env, params = made
+  dummy = DummyVecEnv([lambda: bridges.GymnasiumEnv(env, params) for _ in range(N)])
+  venv.seed(31)
+  dummy.seed(31)
+  np.testing.assert_array_equal(venv.reset(), dummy.reset())
+  rng = np.random.default_rng(3)
+  ends, worst = 0, 0.0
+  for t in range(510):
+    actions = rng.uniform(-1, 1, (N, 2)).astype(np.float32)
+    obs, reward, done, infos = venv.step(actions)
+    d_obs, d_reward, d_done, d_infos = dummy.step(actions)
+    worst = max(worst, float(np.abs(obs - d_obs).max()))
+    np.testing.assert_allclose(obs, d_obs, rtol=0, atol=1e-6, err_msg=f"step {t}")
+    np.testing.assert_array_equal(reward, d_reward)
+    np.testing.assert_array_equal(done, d_done)
+    for i in np.flatnonzero(done):
+      np.testing.assert_allclose(infos[i]["terminal_observation"],
+                                 d_infos[i]["terminal_observation"], rtol=0, atol=1e-6)
+      assert infos[i]["TimeLimit.truncated"] == d_infos[i]["TimeLimit.truncated"]
+    ends += int(done.sum())
+  assert ends == 510 and worst < 1e-6
+
+
+def test_seeds_follow_one_rule(made, venv):
+  env, params = made
+  with pytest.raises(ValueError, match=r"seed: expected an int >= 0 \(any size\) or None"):
+    venv.seed(-5)
+  assert venv.seed(2**64) == [2**64, 2**64 + 1, 2**64 + 2]
+  obs = venv.reset()  # No OverflowError: every bit of the seed counts.
+  single = bridges.GymnasiumEnv(env, params)
+  np.testing.assert_array_equal(obs[2], single.reset(seed=2**64 + 2)[0])
+  assert len(venv.seed()) == N  # SB3 draws a seed below 2**32 and adds i: fine too.
+  venv.reset()
 
 
 def test_attributes_methods_and_wrappers(made, venv):

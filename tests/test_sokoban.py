@@ -6,6 +6,7 @@ grid rules are checked by a plain-Python Sokoban written here (`_grid_replay`), 
 reads the maps on its own, not through `jaxchain.levels`.
 """
 
+import doctest
 import functools
 import math
 import pathlib
@@ -21,7 +22,6 @@ from jaxchain import levels
 DATA = pathlib.Path(__file__).parent / "data" / "sokoban"
 MICROBAN = DATA / "microban.xsb"
 REPLAYED = 30  # Microban levels replayed through the physics here (all: the benchmark).
-ACTION = {"l": 1, "r": 2, "d": 3, "u": 4}  # jc.env.MOVES; XSB's "down" is world -y.
 STEP = {"l": (0, -1), "r": (0, 1), "d": (1, 0), "u": (-1, 0)}  # (row, column)
 
 
@@ -165,8 +165,8 @@ RULES_MOVES = "lrdrrrrdul"
 @functools.cache
 def _replay():
   """Replays the first REPLAYED Microban solutions and RULES_MOVES on RULES, every
-  level in one vmapped, jitted scan of env.step_env: `(env, state, path)` with the
-  player's position after every env step."""
+  level in one jitted `jc.env.make_replay` (a vmapped scan of env.step_env): `(env,
+  state, path)` with the player's position after every env step."""
   maps = _microban_maps()[:REPLAYED] + [RULES]
   moves = [levels.parse_moves(s) for s in _solutions()[:REPLAYED]] + [RULES_MOVES]
   task = jc.env.Task(name="microban", levels=levels.load_collection(MICROBAN)[:REPLAYED] +
@@ -175,22 +175,8 @@ def _replay():
                      terminate=jc.env.sokoban_terminate,
                      params=jc.env.PushBoxParams(jitter=0.0, max_steps=10_000))
   env, params = jc.env.make(task, dt=1 / 64)
-  steps = max(map(len, moves))
-  actions = np.zeros((len(moves), steps), np.int32)  # Padded with noops.
-  for k, m in enumerate(moves):
-    actions[k, :len(m)] = [ACTION[ch.lower()] for ch in m]
-
-  def replay(level, acts):
-    key = jax.random.key(0)
-    state = env.reset_level(key, params, level)
-
-    def body(state, action):
-      _, state, _, _, _ = env.step_env(key, state, action, params)
-      return state, state.world.pos[0]
-    return jax.lax.scan(body, state, acts)
-
-  state, path = jax.jit(jax.vmap(replay))(jnp.arange(len(moves), dtype=jnp.int32),
-                                          jnp.asarray(actions))
+  actions = jc.env.sokoban_actions(moves)  # Padded with noops.
+  state, path, _ = jax.jit(jc.env.make_replay(env, params))(np.arange(len(moves)), actions)
   return env, maps, moves, jax.device_get(state), np.asarray(path)
 
 
@@ -233,6 +219,25 @@ def test_sokoban_moves_refuse_blocked_pushes_in_the_world():
   assert _grid_replay(RULES, RULES_MOVES)[:2] == (want, boxes)
 
 
+def test_replay_helpers():
+  """`sokoban_actions` and `make_replay` are the one replay scan: this module and
+  benchmarks/sokoban_replay.py both call them and write no scan of their own."""
+  assert jc.env.sokoban_actions(["lurdLURD", "r"]).tolist() == [[1, 4, 2, 3, 1, 4, 2, 3],
+                                                                 [2, 0, 0, 0, 0, 0, 0, 0]]
+  assert jc.env.sokoban_actions([]).shape == (0, 0)
+  with pytest.raises(ValueError, match=r"solution 1, position 2: '3' is not a move"):
+    jc.env.sokoban_actions(["r", "u3r"])
+  bench = (pathlib.Path(__file__).parents[1] / "benchmarks" / "sokoban_replay.py").read_text()
+  for text in (bench, pathlib.Path(__file__).read_text()):
+    assert "jc.env.make_replay(" in text and "jc.env.sokoban_actions(" in text
+    assert "lax.scan" + "(" not in text and "ACTION" + " = " not in text
+  finder = doctest.DocTestFinder()
+  runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS)
+  for test in finder.find(jc.env.sokoban_actions, "sokoban_actions", globs={}):
+    runner.run(test)
+  assert runner.tries > 0 and runner.failures == 0
+
+
 def test_sokoban_moves_checks_its_setting():
   with pytest.raises(ValueError, match=r"repeat must be >= 2"):
     jc.env.SokobanMoves(repeat=1)
@@ -263,15 +268,9 @@ def test_sokoban_moves_with_dt_1_60_land_on_cells_within_rounding():
                      params=jc.env.PushBoxParams(jitter=0.0))
   env, params = jc.env.make(task)  # dt = 1/60: not a power of two.
   assert env.config.dt == 1 / 60
-  key = jax.random.key(0)
-
-  def replay(acts):
-    def body(state, action):
-      _, state, _, done, info = env.step_env(key, state, action, params)
-      return state, (state.world.pos[0], info["success"])
-    return jax.lax.scan(body, env.reset_level(key, params, 0), acts)
-
-  state, (path, success) = jax.jit(replay)(jnp.asarray([ACTION[m] for m in moves], jnp.int32))
+  state, path, info = jax.jit(jc.env.make_replay(env, params))(np.zeros(1, np.int32),
+                                                              jc.env.sokoban_actions([moves]))
+  state, path, success = jax.tree.map(lambda x: x[0], (state, path, info["success"]))
   want, boxes, goals = _grid_replay(rows, moves)
   np.testing.assert_allclose(np.asarray(path), want, rtol=0, atol=1e-5)
   box = env.slots_of("box")

@@ -373,3 +373,59 @@ def test_shipped_platformer2_loads_as_before_the_solid_rule():
       "flag": 1}
   ground = list(lv.tags["ground"])
   assert lv.one_way[ground].sum() == 3 and lv.bounds == (0.0, 0.0, 16.0, 10.0)
+
+
+SHAPED_TSX = ('<tileset name="t" tilewidth="16" tileheight="16" tilecount="4" columns="4">'
+              '<tile id="1"><properties><property name="solid" type="bool" value="true"/>'
+              '</properties><objectgroup draworder="index"><object id="1" x="0" y="8" width="16"'
+              ' height="8"><properties><property name="friction" type="float" value="9"/>'
+              '</properties></object></objectgroup></tile>'
+              '<tile id="2"><objectgroup><object id="1" x="0" y="0"><polygon points="0,0 16,16 '
+              '0,16"/></object></objectgroup></tile></tileset>')
+
+
+def test_tiles_with_collision_shapes_warn_that_the_shapes_are_ignored(tmp_path):
+  """Shapes drawn on tiles in Tiled's collision editor are not read: each solid tile is
+  a full cell (a tile object its box). A map that makes bodies of such tiles warns,
+  naming them; the shapes' own properties are not the tile's."""
+  (tmp_path / "t.tsx").write_text(SHAPED_TSX)
+  embedded = SHAPED_TSX.replace('<tileset name="t"', '<tileset firstgid="1" name="t"')
+
+  def tmx(tileset, layer, objects=""):
+    return ('<map orientation="orthogonal" width="3" height="1" tilewidth="16" '
+            f'tileheight="16">{tileset}<layer name="ground" width="3" height="1">'
+            f'<data encoding="csv">{layer}</data></layer>'
+            f'<objectgroup name="things">{objects}</objectgroup></map>')
+
+  shaped = r"shape.tmx: tileset 't(\.tsx)?' tile 1 has collision shapes \(drawn in Tiled's "
+  for tileset in ('<tileset firstgid="1" source="t.tsx"/>', embedded):
+    (tmp_path / "shape.tmx").write_text(tmx(tileset, "2,2,0"))
+    with pytest.warns(UserWarning, match=shaped + r"collision editor\), which jaxchain ignores: "
+                                              r"a solid tile is its full cell, a tile object "
+                                              r"its box"):
+      lv = levels.load(tmp_path / "shape.tmx")
+    assert lv.pos.tolist() == [[1.0, 0.5]] and lv.half.tolist() == [[1.0, 0.5]]  # Full cells.
+    assert lv.friction.tolist() == [0.0]  # Not the shape object's friction.
+    # A tile object of a shaped tile warns too (tile 2: not solid in a tile layer).
+    (tmp_path / "shape.tmx").write_text(tmx(tileset, "0,3,0", '<object id="5" gid="3" x="0" '
+                                                               'y="16" width="16" height="16"/>'))
+    with pytest.warns(UserWarning, match=r"shape.tmx: tileset 't(\.tsx)?' tile 2 has collision"):
+      assert levels.load(tmp_path / "shape.tmx").num_bodies == 1
+    # Shaped tiles that make no body: no warning.
+    (tmp_path / "shape.tmx").write_text(tmx(tileset, "0,3,1"))
+    with warnings.catch_warnings():
+      warnings.simplefilter("error")
+      assert levels.load(tmp_path / "shape.tmx").num_bodies == 0
+  # The JSON forms: an embedded tileset and an external .tsj.
+  data = {"orientation": "orthogonal", "width": 2, "height": 1, "tilewidth": 16,
+          "tileheight": 16, "tilesets": [{"firstgid": 1, "name": "j", "tiles": [
+              {"id": 0, "objectgroup": {"objects": [{"id": 1, "x": 0, "y": 0, "width": 16,
+                                                     "height": 4}]}}]}],
+          "layers": [{"type": "tilelayer", "name": "g", "data": [1, 1], "properties": [
+              {"name": "solid", "type": "bool", "value": True}]}]}
+  with pytest.warns(UserWarning, match=r"<tiled>: tileset 'j' tile 0 has collision shapes"):
+    assert levels.load_tiled(data).half.tolist() == [[1.0, 0.5]]
+  (tmp_path / "j.tsj").write_text(json.dumps(data["tilesets"][0]))
+  data["tilesets"] = [{"firstgid": 1, "source": "j.tsj"}]
+  with pytest.warns(UserWarning, match=r"<tiled>: tileset 'j.tsj' tile 0 has collision shapes"):
+    levels.load_tiled(data, base=tmp_path)

@@ -16,11 +16,13 @@ static arguments, with fixed output shapes and no Python loop over bodies:
 
 Directions are those of `jaxchain.geometry.DIRECTIONS`: `0: +x, 1: -x, 2: +y, 3: -y`.
 The pair queries (`touching_bodies`, `drive_platforms`, `drop_through`) build dense
-pairs, O(n^2) per world, like the dense broadphase; the others are O(n).
+pairs, O(n^2) per world, like the dense broadphase; `raycast` sorts, O(n log n); the
+others are O(n).
 
 Host input is checked where it is concrete (a `ValueError` names the argument);
 traced input (inside `jit` or `vmap`) is not checked, and a bad value there gives a
-documented neutral answer instead (a zero ray direction hits nothing, say).
+documented neutral answer instead (a zero ray direction hits nothing, a body index out
+of range moves nothing: it never wraps around to the last body).
 """
 
 from __future__ import annotations
@@ -277,17 +279,27 @@ def raycast(world: World, origin, direction, max_distance=float("inf"), *, mask=
 
   The slab method on every body: the ray enters a box at the latest of its per-axis
   entry times and leaves it at the earliest exit; it hits when it enters before it
-  leaves (strictly: a ray that only grazes a corner, or runs along a face, hits
-  nothing) at a distance in `[0, max_distance]`. A body that contains the origin is
-  ignored (Box2D's rule: a ray starting inside a box does not hit it, so a character
-  can cast from its own centre); a ray starting on a face and pointing into the box
-  hits it at distance 0. The nearest hit wins, ties to the lower index.
+  leaves (strictly: a ray that only grazes a corner, or runs along the face of one
+  body, hits nothing) at a distance in `[0, max_distance]`. A body that contains the
+  origin is ignored (Box2D's rule: a ray starting inside a box does not hit it, so a
+  character can cast from its own centre); a ray starting on a face and pointing into
+  the box hits it at distance 0. The nearest hit wins, ties to the lower index.
 
-  Distances are in world units: `direction` is normalised first. Gradient-safe: the
-  distance and point of a hit are differentiable in `origin`, `direction` and the
-  bodies' positions and sizes, also for axis-aligned rays (a direction component of
-  0 takes no division; the normalisation is guarded: `chain.safe_divide`'s double
-  `where`).
+  Seams: an axis-aligned ray that runs exactly along the faces between bodies (the seam
+  of a floor of tiles, the base of a wall standing on a floor) sees them as their
+  union, as the step and `move_and_slide` see one surface there: it enters a body on
+  one side of the seam where a body on the other side holds it too (and both hold
+  points past the entry), and hits that body there. A ground check straight down at an
+  integer x over a tiled floor hits it, as over one merged body; along the outer face
+  of a floor with nothing on the other side it still grazes and hits nothing.
+
+  Distances are in world units: `direction` is normalised first (divided by its
+  largest component, then by its length, so any direction of normal floats works,
+  `(1e-30, -1e-30)` too). Gradient-safe: the distance and point of a hit are
+  differentiable in `origin`, `direction` and the bodies' positions and sizes, also
+  for axis-aligned rays (a direction component of 0 takes no division; the
+  normalisation is guarded: `chain.safe_divide`'s double `where`). O(n log n): the
+  seams sort the bodies along the ray.
 
   Args:
     world: a single world.
@@ -298,11 +310,13 @@ def raycast(world: World, origin, direction, max_distance=float("inf"), *, mask=
     ignore: optional body index, or `[n]` bool mask, of bodies to skip (the caster).
 
   Returns:
-    A `RayHit`. Under `jit` a zero direction hits nothing.
+    A `RayHit`. Under `jit` a zero direction (or one below the dtype's smallest normal
+    float, which XLA flushes to zero) hits nothing.
 
   Raises:
-    ValueError: for concrete input that is not `[2]` finite numbers, a zero direction,
-      a negative or NaN `max_distance`, or a bad mask or ignore.
+    ValueError: for concrete input that is not `[2]` finite numbers, a zero direction
+      (no component of magnitude at least the dtype's smallest normal float), a
+      negative or NaN `max_distance`, or a bad mask or ignore.
 
   Examples:
     >>> import jaxchain as jc
@@ -316,8 +330,11 @@ def raycast(world: World, origin, direction, max_distance=float("inf"), *, mask=
   origin = _vector("origin", "raycast", origin, dtype)
   direction = _vector("direction", "raycast", direction, dtype)
   host = _concrete(direction)
-  if host is not None and not np.any(host != 0):
-    raise ValueError("raycast: direction must be nonzero, got [0, 0]")
+  tiny = np.finfo(np.dtype(dtype)).tiny
+  if host is not None and not np.max(np.abs(host.astype(np.float64))) >= tiny:
+    raise ValueError(f"raycast: direction must be nonzero, with a component of magnitude at "
+                     f"least {tiny:.3g} (the smallest normal {np.dtype(dtype).name}: smaller ones "
+                     f"flush to zero), got {host.tolist()}")
   host = _concrete(max_distance)
   if host is not None and (host.shape != () or np.isnan(host) or host < 0):
     raise ValueError(f"raycast: max_distance must be a number >= 0 (inf for no limit), got "
@@ -345,20 +362,30 @@ def _raycast(world: World, origin: jax.Array, direction: jax.Array, max_distance
     zero = jnp.zeros(2, origin.dtype)
     return RayHit(hit=jnp.zeros((), bool), body=jnp.full((), -1, jnp.int32),
                   distance=max_distance, point=origin, normal=zero)
-  sq = jnp.sum(direction * direction)
-  ok = sq > 0
-  norm = jnp.sqrt(jnp.where(ok, sq, 1.0))  # Guarded: no NaN gradient at a zero direction.
-  u = jnp.where(ok, direction / norm, 0.0)
+  # Normalised by its largest component first, so that a tiny direction (1e-30, -1e-30)
+  # does not square to zero; guarded: no NaN gradient at a zero direction.
+  scale = jnp.max(jnp.abs(direction))
+  ok = scale > 0
+  d = direction / jnp.where(ok, scale, 1.0)
+  u = jnp.where(ok, d / jnp.sqrt(jnp.where(ok, jnp.sum(d * d), 1.0)), 0.0)
   moving = u != 0  # [2]
   inv = jnp.where(moving, 1.0 / jnp.where(moving, u, 1.0), 0.0)
   low, high = world.pos - world.half, world.pos + world.half  # [n, 2]
   t1, t2 = (low - origin[None]) * inv[None], (high - origin[None]) * inv[None]
   enter_k = jnp.where(moving[None], jnp.minimum(t1, t2), -jnp.inf)
   leave_k = jnp.where(moving[None], jnp.maximum(t1, t2), jnp.inf)
-  # Along an axis the ray does not move, it must lie strictly inside the slab.
+  # Along an axis the ray does not move, it must lie strictly inside the slab...
   in_slab = jnp.where(moving[None], True, (origin[None] > low) & (origin[None] < high))
   enter, leave = jnp.max(enter_k, axis=-1), jnp.min(leave_k, axis=-1)
-  hits = (ok & world.active & ~world.sensor & admitted & jnp.all(in_slab, axis=-1)
+  hittable = ok & world.active & ~world.sensor & admitted
+  # ...or on a seam: on a face of bodies on one side of it and of bodies on the other,
+  # the ray enters a body once a body of the other side holds it too (the union).
+  line = jnp.sum(moving) == 1
+  above = hittable & line & jnp.any(~moving[None] & (origin[None] == low), axis=-1)
+  below = hittable & line & jnp.any(~moving[None] & (origin[None] == high), axis=-1)
+  seam = (above & _covered(enter, enter, leave, below)) | (below & _covered(enter, enter, leave,
+                                                                           above))
+  hits = (hittable & (jnp.all(in_slab, axis=-1) | seam)
           & (enter >= 0) & (enter < leave) & (enter <= max_distance))
   best = jnp.argmin(jnp.where(hits, enter, jnp.inf)).astype(jnp.int32)
   hit = jnp.any(hits)
@@ -370,6 +397,17 @@ def _raycast(world: World, origin: jax.Array, direction: jax.Array, max_distance
   normal = jnp.where(onehot, -jnp.sign(u), 0.0)
   return RayHit(hit=hit, body=jnp.where(hit, best, -1), distance=distance,
                 point=jnp.where(hit, point, origin), normal=jnp.where(hit, normal, 0.0))
+
+
+def _covered(t: jax.Array, enter: jax.Array, leave: jax.Array, member: jax.Array
+             ) -> jax.Array:
+  """`[n]` bool: whether `t[i]` lies in `[enter[j], leave[j])` of some member j (`[n]`
+  each). O(n log n): the members sorted by entry, with the running latest exit."""
+  e = jnp.where(member, enter, jnp.inf)
+  order = jnp.argsort(e)
+  reach = jax.lax.cummax(jnp.where(member, leave, -jnp.inf)[order])
+  k = jnp.searchsorted(e[order], t, side="right")  # Members entering at or before t.
+  return (k > 0) & (reach[jnp.maximum(k - 1, 0)] > t)
 
 
 # --- move_and_slide ----------------------------------------------------------------------
@@ -411,8 +449,12 @@ def move_and_slide(world: World, body, velocity, dt, *, skin: float = SKIN
   active, non-sensor body that collision layers admit with it, movable ones included,
   that overlaps it along the other axis by more than `skin` (faces within `skin` of
   each other, as a floor under a body sliding along a wall, are no obstacle: no ghost
-  collisions at seams) and lies ahead with a gap of at least `-skin` (a body it already
-  overlaps deeper does not block it: it may leave; nothing pushes it out either). A
+  collisions at seams) and lies ahead with a gap of at least `-skin`. A body it
+  already overlaps more deeply never lets it go deeper: when that axis is the pair's
+  contact axis (the one of smaller overlap, ties x, as in the step) and the move heads
+  toward the obstacle's centre, the body stays where it is along that axis (a hit, its
+  velocity component zeroed); moves that leave the overlap, or slide along it (a body
+  sunk into a floor running sideways), are free, and nothing pushes it out. A
   one-way body blocks only a downward move whose bottom starts at or above its top, up
   to the step's one-way margin (`geometry.ONE_WAY_MARGIN` of the summed half-heights),
   and is then landed on flush; other moves pass it (from below, from the sides, and
@@ -429,7 +471,8 @@ def move_and_slide(world: World, body, velocity, dt, *, skin: float = SKIN
 
   Args:
     world: a single world.
-    body: the index of the body to move (an active body; traced values allowed).
+    body: the index of the body to move (an active body; traced values allowed: one
+      out of range or inactive moves nothing, and the info reports no hit).
     velocity: `[2]` velocity to move with.
     dt: the time step, `> 0`.
     skin: contact tolerance (static; the step's `Config.skin` by default).
@@ -481,32 +524,47 @@ def _sweep(world: World, obstacle: jax.Array, p: jax.Array, h: jax.Array, axis: 
   gap = jnp.abs(d[:, axis]) - reach[:, axis]  # >= 0: apart along the axis.
   ahead = jnp.where(move > 0, d[:, axis] > 0, d[:, axis] < 0)
   solid = ~world.one_way & (gap >= -skin)
+  # Already inside it, this axis the pair's contact axis (the smaller overlap; ties x, as
+  # in the step): moving toward its centre would go deeper, so the body stays put.
+  deeper = ~world.one_way & (gap < -skin) & ((-gap <= side) if axis == 0 else (-gap < side))
   if axis == 1:  # A one-way body stops only a fall that starts above it (its margin).
     margin = geometry.ONE_WAY_MARGIN * reach[:, 1]
     solid = solid | (world.one_way & (move < 0) & (gap >= -margin))
   else:
     solid = solid & ~world.one_way
-  stop = obstacle & ahead & (side > skin) & solid & (move != 0)
+  stop = obstacle & ahead & (side > skin) & (solid | deeper) & (move != 0)
   clear = jnp.maximum(gap, 0.0)
   stop = stop & (clear <= jnp.abs(move))
   j = jnp.argmin(jnp.where(stop, clear, jnp.inf)).astype(jnp.int32)
   hit = jnp.any(stop)
   face = world.pos[j, axis] - jnp.sign(move) * reach[j, axis]
+  face = jnp.where(deeper[j], p[axis], face)
   return jnp.where(hit, face, p[axis] + move), hit, jnp.where(hit, j, -1)
+
+
+def _live(world: World, i: jax.Array) -> tuple[jax.Array, jax.Array]:
+  """`(index, live)`: a traced body index clamped into range, and whether it names an
+  active body (an index out of range names none: it must not wrap to the last body)."""
+  n = world.num_bodies
+  ok = (i >= 0) & (i < n)
+  i = jnp.where(ok, i, 0)
+  return i, ok & world.active[i]
 
 
 @functools.partial(jax.jit, static_argnames="skin")
 def _move_and_slide(world: World, i: jax.Array, v: jax.Array, dt: jax.Array,
                     skin: float) -> tuple[World, SlideInfo]:
+  i, live = _live(world, i)
   obstacle = _obstacles(world, i)
   p, h = world.pos[i], world.half[i]
-  move = jnp.where(world.active[i], v * dt, 0.0)
+  move = jnp.where(live, v * dt, 0.0)
   x, hit_x, j_x = _sweep(world, obstacle, p, h, 0, move[0], skin)
   p = p.at[0].set(x)
   y, hit_y, j_y = _sweep(world, obstacle, p, h, 1, move[1], skin)
   p = p.at[1].set(y)
   vel = jnp.where(jnp.stack([hit_x, hit_y]), 0.0, v)
-  vel = jnp.where(world.active[i], vel, world.vel[i])
+  vel = jnp.where(live, vel, world.vel[i])
+  p = jnp.where(live, p, world.pos[i])
   on_floor = hit_y & (move[1] < 0)
   info = SlideInfo(on_floor=on_floor, on_wall=hit_x, on_ceiling=hit_y & (move[1] > 0),
                    hit_x=j_x, hit_y=j_y,
@@ -518,8 +576,8 @@ def _move_and_slide(world: World, i: jax.Array, v: jax.Array, dt: jax.Array,
 # --- drive_platforms ---------------------------------------------------------------------
 
 
-def drive_platforms(world: World, platforms, velocity, *, depth: int = 8,
-                    skin: float = SKIN) -> World:
+def drive_platforms(world: World, platforms, velocity, *, depth: int | None = None,
+                    skin: float = SKIN, left_behind: bool = False):
   """Sets the velocity of kinematic platforms and carries their riders by the change.
 
   A kinematic platform is an immovable body (mass inf) that moves by its velocity in
@@ -532,7 +590,9 @@ def drive_platforms(world: World, platforms, velocity, *, depth: int = 8,
   Carried: an active movable body whose support (what it stands on:
   `touching_bodies`' `-y` row, the one-way rule included; of several, the one under
   the widest part of its bottom face, ties to the lower index) is a driven platform,
-  or is itself carried, up to `depth` bodies high. Both velocity components change
+  or is itself carried: a stack of any height by default, or up to `depth` bodies high
+  (each level one hop, so `depth` bounds the work). With a `depth`, the bodies of a
+  higher stack keep their velocity: `left_behind=True` returns which. Both velocity components change
   (a platform that starts down takes its riders down with it). A body touching a
   platform only from the side or from below is not carried, nor is an immovable one (a
   character moved by `move_and_slide` rides with `SlideInfo.floor_velocity`).
@@ -548,15 +608,21 @@ def drive_platforms(world: World, platforms, velocity, *, depth: int = 8,
     platforms: the bodies to drive: one index, or an `[n]` bool mask. Movable bodies
       in it are ignored (a concrete one is an error).
     velocity: `[2]` for all of them, or `[n, 2]` (row i for body i).
-    depth: how many bodies high a stack is carried (static).
+    depth: how many bodies high a stack is carried (static); None (default): any
+      height (`n - 1` hops).
     skin: contact tolerance (static).
+    left_behind: also return which bodies a `depth` left behind (static).
 
   Returns:
-    The world with the platforms' and their riders' velocities updated.
+    The world with the platforms' and their riders' velocities updated; with
+    `left_behind`, `(world, left)`: `left` `[n]` bool, the bodies standing on a driven
+    stack higher than `depth` (carried by the whole stack, not by this call; all
+    False without a `depth`).
 
   Raises:
     ValueError: for a concrete platform index out of range, a mask of the wrong shape,
-      a movable platform, or a velocity that is not finite `[2]` or `[n, 2]`.
+      a movable platform, a velocity that is not finite `[2]` or `[n, 2]`, or a
+      `depth` that is not None or an integer >= 0.
 
   Examples:
     >>> import jaxchain as jc
@@ -589,9 +655,12 @@ def drive_platforms(world: World, platforms, velocity, *, depth: int = 8,
     raise ValueError(f"drive_platforms: velocity must be finite, of shape (2,) or ({n}, 2), got "
                      f"{vel.shape}")
   velocity = jnp.broadcast_to(jnp.asarray(velocity, world.vel.dtype), (n, 2))
-  if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or depth < 0:
-    raise ValueError(f"drive_platforms: depth must be an integer >= 0, got {depth!r}")
-  return _drive_platforms(world, platforms, velocity, int(depth), float(skin))
+  if depth is not None and (isinstance(depth, bool) or not isinstance(depth, (int, np.integer))
+                            or depth < 0):
+    raise ValueError(f"drive_platforms: depth must be None or an integer >= 0, got {depth!r}")
+  hops = max(n - 1, 0) if depth is None else min(int(depth), max(n - 1, 0))
+  world, left = _drive_platforms(world, platforms, velocity, hops, float(skin), bool(left_behind))
+  return (world, left) if left_behind else world
 
 
 def _supports(world: World, skin: float) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -606,21 +675,26 @@ def _supports(world: World, skin: float) -> tuple[jax.Array, jax.Array, jax.Arra
   return jnp.any(below, axis=-1), best, below
 
 
-@functools.partial(jax.jit, static_argnames=("depth", "skin"))
-def _drive_platforms(world: World, platforms: jax.Array, velocity: jax.Array, depth: int,
-                     skin: float) -> World:
-  if world.num_bodies == 0:
-    return world
+@functools.partial(jax.jit, static_argnames=("hops", "skin", "report"))
+def _drive_platforms(world: World, platforms: jax.Array, velocity: jax.Array, hops: int,
+                     skin: float, report: bool) -> tuple[World, jax.Array]:
+  n = world.num_bodies
+  if n == 0:
+    return world, jnp.zeros((0,), bool)
   driven = platforms & world.active & (world.inv_mass == 0)
   change = jnp.where(driven[:, None], velocity - world.vel, 0.0)
   stands, best, _ = _supports(world, skin)
   carried = stands & world.movable
 
-  def hop(_, dv):
+  def hop(_, dv):  # One more body high: each carried body takes its support's change.
     return jnp.where(carried[:, None], dv[best], change)
 
-  dv = jax.lax.fori_loop(0, depth, hop, change)
-  return dataclasses.replace(world, vel=world.vel + dv)
+  dv = jax.lax.fori_loop(0, hops, hop, change)
+  left = jnp.zeros((n,), bool)
+  if report and hops < n - 1:  # The whole stack (a support chain has at most n bodies).
+    full = jax.lax.fori_loop(0, n - 1 - hops, hop, dv)
+    left = jnp.any(full != dv, axis=-1)
+  return dataclasses.replace(world, vel=world.vel + dv), left
 
 
 # --- drop_through ------------------------------------------------------------------------
@@ -641,7 +715,8 @@ def drop_through(world: World, body, *, skin: float = SKIN) -> tuple[World, jax.
 
   Args:
     world: a single world.
-    body: the index of the body (an active body; traced values allowed).
+    body: the index of the body (an active body; traced values allowed: one out of
+      range or inactive drops nothing).
     skin: contact tolerance (static).
 
   Returns:
@@ -662,9 +737,10 @@ def drop_through(world: World, body, *, skin: float = SKIN) -> tuple[World, jax.
 
 @functools.partial(jax.jit, static_argnames="skin")
 def _drop_through(world: World, i: jax.Array, skin: float) -> tuple[World, jax.Array]:
+  i, live = _live(world, i)
   _, _, below = _supports(world, skin)
   row = below[i]  # [n]
-  dropped = jnp.any(row) & ~jnp.any(row & ~world.one_way) & world.active[i]
+  dropped = jnp.any(row) & ~jnp.any(row & ~world.one_way) & live
   h = world.half[i, 1]
   top = world.pos[:, 1] + world.half[:, 1]
   bottom = top - (geometry.ONE_WAY_MARGIN + DROP_EXTRA) * (world.half[:, 1] + h)

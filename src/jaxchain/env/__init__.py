@@ -138,7 +138,8 @@ from jaxchain.env.core import (CHECK_ACTIONS, LEVELS, OBS_MODES, Environment, En
                                    EnvState, PushBoxParams, ReachFlagParams, Task, load_level)
 from jaxchain.env.observations import PLAYER_FEATURES, SLOT_FIELDS, senses
 from jaxchain.env.spaces import Box, Discrete
-from jaxchain.env.sokoban import SokobanMoves, sokoban_terminate
+from jaxchain.env.sokoban import (LURD, SokobanMoves, make_replay, sokoban_actions,
+                                     sokoban_terminate)
 from jaxchain.env.tasks import (TASK_DEFS, TASK_LEVELS, TASKS, all_goals_filled,
                                     box_drag_x, box_goal_distance, drag, goals_filled, make,
                                     patrol, push_reward, push_terminate, reach_reward,
@@ -152,5 +153,5 @@ __all__ = [
     "RunJump", "Task", "UniformPhysics", "all_goals_filled", "box_drag_x", "box_goal_distance", "drag",
     "goals_filled", "load_level", "make", "patrol", "push_reward", "push_terminate",
     "reach_reward", "reach_terminate", "senses", "uniform_physics",
-    "SokobanMoves", "sokoban_terminate",
+    "SokobanMoves", "sokoban_terminate", "LURD", "make_replay", "sokoban_actions",
 ]

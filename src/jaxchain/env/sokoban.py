@@ -43,17 +43,29 @@ there.
                        terminate=jc.env.sokoban_terminate,
                        params=jc.env.PushBoxParams(jitter=0.0, max_steps=1000))
     env, params = jc.env.make(task, dt=1 / 64)
+
+Published solutions replay with `sokoban_actions` (LURD letters to actions, padded)
+and `make_replay` (one vmapped, jittable scan of the env over every level's actions):
+
+    replay = jax.jit(jc.env.make_replay(env, params))
+    state, path, info = replay(jnp.arange(len(moves)), jc.env.sokoban_actions(moves))
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxchain.env.actions import _MOVE_DIR, MOVES, ActionMap
 from jaxchain.env.spaces import Discrete
+
+# `MOVES` index of each LURD letter (either case: a push is a move that pushes). XSB's
+# rows run down the screen, so its "d" is the world's -y.
+LURD = {"l": 1, "r": 2, "d": 3, "u": 4, "L": 1, "R": 2, "D": 3, "U": 4}
 
 # How far from a cell centre (in cells) a body still counts as on it, and how slow
 # (in cells per step) a body counts as at rest: both far above float32 rounding, far
@@ -168,3 +180,68 @@ def sokoban_terminate(env, old, action, new, params):
   filled = jnp.any(present) & jnp.all(new.world.sensed[goal] | ~present)
   success = filled & at_rest(new.world, dt=env.config.dt)
   return success | new.world.crushed[0], success
+
+
+def sokoban_actions(moves: Sequence[str]) -> np.ndarray:
+  """`SokobanMoves` actions of Sokoban solutions, one row per solution.
+
+  Args:
+    moves: solutions, one letter per move (`jaxchain.levels.parse_moves` expands
+      the run-length form): `l r d u` moves and `L R D U` pushes (`LURD`).
+
+  Returns:
+    `[len(moves), T]` int32 (`MOVES` indices), padded with noops (0) to the longest
+    solution `T`.
+
+  Raises:
+    ValueError: for a letter that is not a move, naming the solution and position.
+
+  Examples:
+    >>> from jaxchain import env
+    >>> env.sokoban_actions(["rRd", "u"]).tolist()
+    [[2, 2, 3], [4, 0, 0]]
+  """
+  moves = list(moves)
+  out = np.zeros((len(moves), max(map(len, moves), default=0)), np.int32)
+  for k, m in enumerate(moves):
+    for j, ch in enumerate(m):
+      if ch not in LURD:
+        raise ValueError(f"sokoban_actions: solution {k}, position {j + 1}: {ch!r} is not a move "
+                         f"(l r d u, L R D U for pushes; expand counts with "
+                         f"jaxchain.levels.parse_moves)")
+      out[k, j] = LURD[ch]
+  return out
+
+
+def make_replay(env, params) -> Callable[[jax.Array, jax.Array], tuple]:
+  """A replay of action sequences, one per level: `replay(levels, actions)`.
+
+  Each level starts from `env.reset_level(jax.random.key(0), params, level)` and
+  steps through its row of `actions` with `env.step_env` (no auto-reset: an episode
+  that ends goes on stepping, so give `params` a `max_steps` above the row's
+  length); the levels run side by side in one `jax.vmap` of a `lax.scan`. Pure and
+  jittable: `jax.jit(make_replay(env, params))`, or lower and compile it apart.
+
+  Args:
+    env: an env of `jaxchain.env.make` (a `SokobanMoves` task, for solutions).
+    params: its params.
+
+  Returns:
+    `replay(levels, actions) -> (state, path, info)`: `levels` `[L]` int level
+    indices, `actions` `[L, T]` (`sokoban_actions`); `state` the final `EnvState` of
+    each level (leading axis `L`), `path` `[L, T, 2]` the player's centre after every
+    env step, `info` the steps' info dicts (`success`, `terminated`, ...: `[L, T]`).
+  """
+  def one(level, actions):
+    key = jax.random.key(0)
+
+    def body(state, action):
+      _, state, _, _, info = env.step_env(key, state, action, params)
+      return state, (state.world.pos[0], info)
+    state, (path, info) = jax.lax.scan(body, env.reset_level(key, params, level), actions)
+    return state, path, info
+
+  def replay(levels, actions):
+    return jax.vmap(one)(jnp.asarray(levels, jnp.int32), jnp.asarray(actions))
+
+  return replay
