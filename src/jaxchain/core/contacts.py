@@ -19,7 +19,7 @@ from jax import lax
 
 from jaxchain.core.layout import (NUM_DIRECTIONS, Bodies, any_world, lane_index, materialise,
                                   opposite, shift, take)
-from jaxchain.core.pairs import Candidates, first_set
+from jaxchain.core.pairs import Candidates, pack, peel
 
 # A body came down onto a one-way body when, at the start of the step, its bottom was
 # at or above the one-way body's top, up to this fraction of the pair's summed
@@ -365,6 +365,11 @@ def link_table(c: Contacts, cand: Candidates, limit: int | None,
   (`LINK_OVERFLOW`, `[B]`), never silently. With `limit` None (or not below `W`) the
   candidate table is kept whole.
 
+  The compaction packs one bit per (direction, slot) into uint32 words per direction
+  (`pairs.pack`), peels the lowest set bits (`pairs.peel`: its scan keeps the words in
+  memory; fused into the slots' consumers XLA would recompute the packing walk in each),
+  and gathers the kept slots from the candidate table once.
+
   Args:
     c: contacts of the candidate table.
     cand: the candidate table.
@@ -374,14 +379,14 @@ def link_table(c: Contacts, cand: Candidates, limit: int | None,
   """
   W, n, B = c.code.shape
   code = jnp.where(rows[None], c.code, NUM_DIRECTIONS)
-  dirs = jnp.arange(NUM_DIRECTIONS, dtype=code.dtype)[None, :, None, None]
-  sel = code[:, None] == dirs  # [W, 4, n, B]
   if limit is None or limit >= W:
     shape = (W, NUM_DIRECTIONS, n, B)
+    dirs = jnp.arange(NUM_DIRECTIONS, dtype=code.dtype)[None, :, None, None]
     idx = None if cand.idx is None else jnp.broadcast_to(cand.idx[:, None], shape)
     overlap = jnp.broadcast_to(c.overlap[:, None], shape)
-    return Links.of(idx, sel, overlap), jnp.zeros((B,), bool)
-  slot, valid, rest = first_set(sel, limit)  # [limit, 4, n, B]
+    return Links.of(idx, code[:, None] == dirs, overlap), jnp.zeros((B,), bool)
+  words = jnp.stack([pack(lambda k, d=d: code[k] == d, W) for d in range(NUM_DIRECTIONS)], 1)
+  slot, valid, rest = peel(words, limit)  # [limit, 4, n, B]
   body = jnp.arange(n, dtype=jnp.int32)[None, None, :, None]
   flat = lane_index(slot * n + body)
   partner = take(cand.index(), flat)

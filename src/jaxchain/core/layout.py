@@ -219,8 +219,10 @@ def materialise(x: jax.Array) -> jax.Array:
   dynamic-update-slice at an offset it cannot prove is 0 it keeps, as one copy."""
   if x.size == 0:
     return x
-  first = x.reshape(-1)[0]
-  zero = jnp.zeros((), jnp.int32) * (first != first).astype(jnp.int32)
+  # An offset XLA cannot prove is 0: whether the first element, as a float, is NaN (for
+  # an integer array `x != x` is provably false and the copy would be simplified away).
+  first = x.reshape(-1)[0].astype(jnp.float32)
+  zero = jnp.zeros((), jnp.int32) * jnp.isnan(first).astype(jnp.int32)
   return lax.dynamic_update_slice(jnp.zeros_like(x), x, (zero,) * x.ndim)
 
 

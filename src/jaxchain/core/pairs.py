@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -99,38 +100,58 @@ def coarse(pos: jax.Array, bodies: Bodies, config, skin: float | None = None
   return dense(bodies.active), jnp.zeros((B,), jnp.int32)
 
 
-def first_set(sel: jax.Array, limit: int) -> tuple[jax.Array, jax.Array, jax.Array]:
-  """Positions of the first `limit` set entries along axis 0 of `sel` (`[m, ...]`).
+WORD = 32  # Bits per packed word (uint32).
 
-  Packs axis 0 into uint32 words (distinct powers of two, summed exactly), then peels
-  the lowest set bit `limit` times in a `lax.scan` (each peel a few elementwise
-  operations per word, no sort, no `argmax`): `O(m + limit * m / 32)` per row.
+
+def pack(bit: Callable[[int], jax.Array], count: int,
+         shift: Callable[[int], jax.Array] | None = None) -> jax.Array:
+  """`[ceil(count / 32), ...]` uint32 words whose bit k is `bit(k)` (bool, `[...]`).
+
+  An unrolled walk over k, each an elementwise select ORed into its word: XLA fuses the
+  walk into one loop over the `[...]` slabs (measured 4x faster in this layout than a
+  reduction over a slot axis, and than the bit-packing matrix product). With `shift`,
+  item k goes to bit `shift(k)` (a traced int32 below 32) of a single word instead.
+  """
+  if shift is not None:
+    word = None
+    for k in range(count):
+      one = jnp.left_shift(jnp.uint32(1), shift(k).astype(jnp.uint32))
+      term = jnp.where(bit(k), one, jnp.uint32(0))
+      word = term if word is None else word | term
+    return word[None]
+  words = [None] * (-(-count // WORD))
+  for k in range(count):
+    term = jnp.where(bit(k), jnp.uint32(1 << (k % WORD)), jnp.uint32(0))
+    w = k // WORD
+    words[w] = term if words[w] is None else words[w] | term
+  return jnp.stack(words)
+
+
+def peel(words: jax.Array, limit: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+  """Positions of the first `limit` set bits of `words` (`[num_words, ...]` uint32,
+  `pack`), lowest first: the lowest set bit peeled `limit` times in a `lax.scan` (each
+  peel a few elementwise operations per word; no sort, no `argmax`). The scan keeps
+  each peel's words in memory: unrolled, XLA fuses every slot's chain of peels into the
+  slot's output and recomputes them there.
 
   Returns:
     `(slot, valid, rest)`: `[limit, ...]` int32 positions (0 where not valid),
-    `[limit, ...]` bool, and `[...]` bool: the row had more than `limit`.
+    `[limit, ...]` bool, and `[...]` bool: more than `limit` bits were set.
   """
-  m = sel.shape[0]
-  num_words = -(-m // 32)
-  pad = num_words * 32 - m
-  if pad:
-    sel = jnp.concatenate([sel, jnp.zeros((pad,) + sel.shape[1:], bool)])
-  sel = sel.reshape((num_words, 32) + sel.shape[1:])
-  tail = (1,) * (sel.ndim - 2)
-  powers = (jnp.uint32(1) << jnp.arange(32, dtype=jnp.uint32)).reshape((1, 32) + tail)
-  words = jnp.sum(jnp.where(sel, powers, jnp.uint32(0)), axis=1, dtype=jnp.uint32)
-  none = jnp.int32(num_words * 32)
-  base = (32 * jnp.arange(num_words, dtype=jnp.int32)).reshape((num_words,) + tail)
+  num_words = words.shape[0]
+  none = jnp.int32(num_words * WORD)
+  base = (WORD * jnp.arange(num_words, dtype=jnp.int32)).reshape(
+      (num_words,) + (1,) * (words.ndim - 1))
 
-  def peel(x, _):
+  def step(x, _):
     low = x & (~x + jnp.uint32(1))
-    at = jnp.where(x != 0, base + 31 - lax.clz(low).astype(jnp.int32), none)
+    at = jnp.where(x != 0, base + (WORD - 1) - lax.clz(low).astype(jnp.int32), none)
     first = jnp.min(at, axis=0)
     x = jnp.where(at == first[None], x ^ low, x)
     valid = first < none
     return x, (jnp.where(valid, first, 0), valid)
 
-  words, (slot, valid) = lax.scan(peel, words, None, length=limit)
+  words, (slot, valid) = lax.scan(step, words, None, length=limit)
   return slot, valid, jnp.any(words != 0, axis=0)
 
 
@@ -157,15 +178,27 @@ def neighbors(centre: jax.Array, half: jax.Array, rows: jax.Array, coarse: Candi
   AABB gap test along both axes on boxes `centre`, `half`, `[2, n, B]`), the first
   `width` by slot; returns the table and `NEIGHBOR_OVERFLOW` per world."""
   n, B = rows.shape
-  near = coarse.mask & rows[None]
-  for k in (0, 1):
-    gap = jnp.abs(coarse.gather(centre[k]) - centre[k][None]) - (
-        half[k][None] + coarse.gather(half[k]))
-    near = near & (gap <= reach)
-  m = near.shape[0]
+  if coarse.idx is None:  # Dense: a walk over the partners j, [n, B] slabs.
+    m = n
+
+    def near(j):
+      ok = rows & coarse.mask[j]
+      for k in (0, 1):
+        gap = jnp.abs(centre[k][j][None] - centre[k]) - (half[k] + half[k][j][None])
+        ok = ok & (gap <= reach)
+      return ok
+  else:
+    table = coarse.mask & rows[None]
+    for k in (0, 1):
+      gap = jnp.abs(coarse.gather(centre[k]) - centre[k][None]) - (
+          half[k][None] + coarse.gather(half[k]))
+      table = table & (gap <= reach)
+    m = table.shape[0]
+    near = lambda j: table[j]
   if width >= m:  # Nothing to compact: the coarse table, filtered.
-    return Candidates.of(coarse.index(), near), jnp.zeros((B,), jnp.int32)
-  slot, valid, rest = first_set(near, width)
+    table = jnp.stack([near(j) for j in range(m)]) if coarse.idx is None else table
+    return Candidates.of(coarse.index(), table), jnp.zeros((B,), jnp.int32)
+  slot, valid, rest = peel(pack(near, m), width)
   if coarse.idx is None:
     idx = slot
   else:
