@@ -53,8 +53,12 @@ def repeat(hop, init, times: int, converge: bool = False, check: bool = False):
   """
   changes = lambda x, y: jax.tree_util.tree_map(jnp.not_equal, x, y)
   if not converge:
-    out = lax.fori_loop(0, times, lambda _, x: hop(x), init)
-    return (out, changes(out, hop(out))) if check else out
+    if not check:
+      return lax.fori_loop(0, times, lambda _, x: hop(x), init)
+    # The check hop runs as the loop's last iteration (one copy of the hop's code):
+    # the carry holds the last two values, `hop^times` and `hop^(times + 1)`.
+    before, after = lax.fori_loop(0, times + 1, lambda _, c: (c[1], hop(c[1])), (init, init))
+    return before, changes(before, after)
 
   def step(state):
     k, _, x, _ = state

@@ -93,9 +93,21 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
     total = chain.repeat(hop, jnp.where(movable, source, 0.0), depth, converge)
     return impulse, total, count
 
-  impulse, total, count = solve(shared, sticking)
-  sticking = sticking & (jnp.abs(holding(f, total, shared, count)) <= budget)
-  impulse, total, _ = solve(units(f, mass, sticking, depth, converge), sticking)
+  def rounds(k, carry):
+    """Round 0 solves on the chain's units and drops the links that slip from them;
+    round 1 solves again on the units without them (one copy of `solve`'s code)."""
+    shared, sticking, _, _ = carry
+    impulse, total, count = solve(shared, sticking)
+
+    def without_slipping(_):
+      holds = sticking & (jnp.abs(holding(f, total, shared, count)) <= budget)
+      return units(f, mass, holds, depth, converge), holds
+
+    shared, sticking = lax.cond(k == 0, without_slipping, lambda _: (shared, sticking), None)
+    return shared, sticking, impulse, total
+
+  init = (shared, sticking, jnp.zeros_like(budget), jnp.zeros_like(tangent))
+  _, _, impulse, total = lax.fori_loop(0, 2, rounds, init)
   # Units along x (e = 0, 1) slide along y, units along y along x.
   change = jnp.stack([total[2] + total[3], total[0] + total[1]])
   scale = chain.energy_scale(vel, change, impulse, f, mass, mass == 0, tangent)
