@@ -6,7 +6,9 @@ compile so that the first row does not pay for XLA's start-up):
 - `demo`: the program `jaxchain demo` compiles (`jaxchain.cli.demo`): the platformer
   scene of `scenes.platformer` in B = 1024 worlds (seed 0, friction 0.3,
   `Config.for_world(worlds, iterations=1, converge=True)`), `jax.jit(jax.vmap(lambda w,
-  u: rollout(w, config, 50, u)[0]))`: one step inside a 50-step `lax.scan`.
+  u: rollout(w, config, 50, u)[0]))`: one step inside a 50-step `lax.scan` (the vmap
+  reaches the batch-minor core; `jaxchain demo` itself now scans `make_step` over the
+  batch with a masked tail, the same step).
 - `env`: `jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))` of `jc.env.make(task)`
   for push_box and reach_flag at B = 1, 64, 1024, 4096 (auto-reset included).
 
@@ -15,7 +17,7 @@ Each is timed as `jax.jit(f).trace(*args)` (Python tracing to a jaxpr), `.lower(
 program's size: jaxpr equations (each loop body counted once: the static program XLA
 compiles), StableHLO ops, and instructions and `while` loops of the optimised HLO.
 With `--where` (on by default for the demo), the jaxpr equations of the demo's step
-are attributed to the pipeline stage that made them (the line of `stepping.py` that
+are attributed to the pipeline stage that made them (the line of `core/step.py` that
 called into it) and to the source lines that made the most (a Python loop unrolled
 shows up as one line with many equations). Writes `results/compile_time.md`.
 
@@ -161,10 +163,10 @@ def _frames(eqn):
 
 
 def _stage(frames) -> str:
-  """The `stepping.py` line that led here (the pipeline stage), else the module."""
+  """The `core/step.py` line that led here (the pipeline stage), else the module."""
   for f in frames:
-    if f.file_name.endswith("stepping.py"):
-      return f"stepping.py:{f.line_num} {_source(f.file_name, f.line_num)}"
+    if f.file_name.endswith(os.path.join("core", "step.py")):
+      return f"core/step.py:{f.line_num} {_source(f.file_name, f.line_num)}"
   return os.path.basename(frames[0].file_name) if frames else "(outside jaxchain)"
 
 
@@ -205,14 +207,14 @@ def where(one, one_args, top: int) -> tuple[int, list, list]:
 # `op_name` (so the optimised HLO says which function made each fusion). Names a
 # version of jaxchain lacks are skipped.
 SCOPED = {
-    "stepping": ("_passes", "_sensed", "_finite_code", "_switched_off", "_too_fast"),
-    "broadphase": ("candidates",),
-    "flags": ("admit", "sensed", "touching"),
-    "geometry": ("contacts", "link_table", "first_set"),
-    "chain": ("displacement", "backing", "_link_impulses", "energy_scale", "repeat"),
-    "velocity": ("friction", "crush"),
+    "core.step": ("passes", "sensors", "substep"),
+    "core.pairs": ("candidates", "build", "pack", "peel"),
+    "core.contacts": ("admit", "contacts", "seam_axis", "link_table"),
+    "core.flags": ("sensed", "finite", "switched_off", "too_fast", "motion_lost"),
+    "core.chain": ("displacement", "backing", "link_impulses", "energy_scale", "repeat", "crush"),
+    "core.friction": ("friction",),
 }
-LINKS_METHODS = ("reduce", "gather", "gather_bodies")
+LINKS_METHODS = ("front", "back", "bodies")
 ENV_METHODS = ("reset", "step_env", "get_obs")
 # Jitted helpers of jax.random, named in op_name by their jit.
 RANDOM = re.compile(r"jit\((_randint|_uniform|_threefry_split|_threefry_fold_in|_bits|"
@@ -234,8 +236,8 @@ def _scoped(env_cls=None):
 
   undo = []
   targets = [(importlib.import_module(f"jaxchain.{m}"), names) for m, names in SCOPED.items()]
-  from jaxchain import geometry
-  targets.append((geometry.Links, LINKS_METHODS))
+  from jaxchain.core import contacts
+  targets.append((contacts.Links, LINKS_METHODS))
   for cls in (env_cls.__mro__ if env_cls is not None else ()):
     targets.append((cls, [n for n in ENV_METHODS if n in cls.__dict__]))
   for owner, names in targets:
@@ -425,7 +427,7 @@ def write(rows, tables, opts, args, header, wall_s, load_end) -> None:
               "| functions | kernels | instructions |", "|---|---|---|"]
     lines += [f"| `{k}` | {kn} | {n} |" for k, n, kn in paths]
     lines += ["", f"Jaxpr equations of one world ({total} in all) by pipeline stage:", "",
-              "| pipeline stage (the `stepping.py` line, else the module) | eqns | share |",
+              "| pipeline stage (the `core/step.py` line, else the module) | eqns | share |",
               "|---|---|---|"]
     lines += [f"| `{k}` | {n} | {n / total:.0%} |" for k, n in stages]
     lines += ["", "| source line (innermost jaxchain frame; a loop unrolled in Python shows "

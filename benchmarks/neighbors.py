@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxchain as jc
-from jaxchain import broadphase, geometry, scenes, stepping
+from jaxchain import broadphase, core, scenes
 from _bench import machine
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -67,24 +67,26 @@ def demo(settle: int) -> tuple[jc.World, jc.Config]:
 
 
 def rollout_fn(cfg: jc.Config, steps: int):
-  return jax.vmap(lambda w: jc.rollout(w, cfg, steps)[0].pos)
+  return lambda w: jc.rollout(w, cfg, steps)[0].pos  # A batch: the core, batch minor.
 
 
 def pair_fn(cfg: jc.Config):
-  """One substep's pair work, as `_substep` and a pass run it: the table (if any) at the
-  predicted positions, the candidates, contacts at predicted and start, the link table."""
+  """One substep's pair work, as `core.step.substep` and a pass run it, on a batch: the
+  table (if any) at the predicted positions, the candidates, contacts at predicted and
+  start, the link table."""
   def fn(w):
-    predicted = w.pos + w.vel * (cfg.dt / cfg.substeps)
-    table = broadphase.build(predicted, w, cfg, w.pos)
-    cand, code = broadphase.candidates(predicted, w, cfg, table)
-    front, overflow = geometry.links(predicted, w.half, cand, skin=cfg.skin, limit=cfg.links,
-                                     rows=w.movable, start=w.pos)
+    state, bodies = core.from_world(w)
+    predicted = state.pos + state.vel * (cfg.dt / cfg.substeps)
+    table = core.pairs.build(predicted, bodies, cfg, state.pos)
+    cand, code = core.pairs.candidates(predicted, bodies, cfg, table)
+    c = core.contacts.contacts(predicted, bodies.half, cand, cfg.skin, start=state.pos)
+    front, overflow = core.contacts.link_table(c, cand, cfg.links, rows=bodies.movable)
     return jnp.sum(front.overlap), jnp.sum(front.mask), code | overflow
-  return jax.vmap(fn)
+  return fn
 
 
 def step_fn(cfg: jc.Config):
-  return jax.vmap(lambda w: stepping._step(w, cfg, None).pos)
+  return lambda w: jc.step(w, cfg).pos
 
 
 def timed(fns: dict, args: dict, rounds: int) -> dict:

@@ -1,6 +1,6 @@
 """Where a step's time goes: stage-by-stage costs, measured by taking stages away.
 
-Each row times one jitted, vmapped function over a batch of settled worlds (compile
+Each row times one jitted function of the batch-minor core over a batch of settled worlds (compile
 excluded, median of repeats): the broadphase and contacts alone, then with the link
 table, then the resolver passes at depth 0 with positions only and with the contact
 impulses, at full depth, with friction, and the full step. Differences between rows are
@@ -35,44 +35,45 @@ import numpy as np
 from tqdm import tqdm
 
 import jaxchain as jc
-from jaxchain import broadphase, geometry, scenes, stepping
+from jaxchain import core, scenes
 from _bench import add_common_args, machine, median_time, out_dir
 from peers import room
 
 
 
 def stages(cfg: jc.Config) -> dict:
-  """Name -> per-world function, each a superset of the one before."""
+  """Name -> function of a batch (`[B, n, ...]` World), each a superset of the one before;
+  the core's stages on its batch-minor layout (one transpose in, as a step has)."""
   shallow = cfg.replace(depth=0)
 
-  def contacts(w):
-    cand, _ = broadphase.candidates(w.pos, w, cfg)
-    c = geometry.contacts(w.pos, w.half, cand, cfg.skin)
-    return c.link, c.direction.astype(jnp.int8)  # What the link table reads.
-
-  def links(w):
-    cand, _ = broadphase.candidates(w.pos, w, cfg)
-    c = geometry.contacts(w.pos, w.half, cand, cfg.skin)
-    table = geometry.link_table(c, cand, cfg.links, rows=w.movable)[0]
-    return jnp.sum(table.overlap), jnp.sum(table.mask)
+  def pair_stage(w, table=False):
+    state, bodies = core.from_world(w)
+    cand, _ = core.pairs.candidates(state.pos, bodies, cfg)
+    c = core.contacts.contacts(state.pos, bodies.half, cand, cfg.skin, start=state.pos,
+                               surface=bodies.fixed if cfg.immovable else None)
+    if not table:
+      return c.code, c.overlap  # What the link table reads.
+    f = core.contacts.link_table(c, cand, cfg.links, rows=bodies.movable)[0]
+    return jnp.sum(f.overlap), jnp.sum(f.mask)
 
   quiet = cfg.replace(friction=False)
 
   def passes(config, with_vel):
     def fn(w):
-      pos, vel = stepping._passes(w, w.pos, config, start=w.pos,
-                                  vel=w.vel if with_vel else None)[:2]
+      state, bodies = core.from_world(w)
+      pos, vel = core.step.passes(bodies, state.pos, config, start=state.pos,
+                                  vel=state.vel if with_vel else None)[:2]
       return pos if vel is None else (pos, vel)  # Return what a stage makes: no dead code.
     return fn
 
   return {
-      "broadphase + contacts": contacts,
-      "+ link table": links,
+      "broadphase + contacts": pair_stage,
+      "+ link table": lambda w: pair_stage(w, table=True),
       "resolver, depth 0, positions only": passes(shallow.replace(friction=False), False),
       "resolver, depth 0, with contact impulses": passes(shallow.replace(friction=False), True),
       f"resolver, depth {cfg.depth}, with contact impulses": passes(quiet, True),
       f"+ friction (depth {cfg.depth})": passes(cfg, True),
-      "step (integration, status)": lambda w: stepping._step(w, cfg, None),
+      "step (integration, status)": lambda w: jc.step(w, cfg),
   }
 
 
@@ -142,7 +143,7 @@ def main():
     compiled = {}
     for stage, fn in stages(cfg).items():
       t0 = time.perf_counter()
-      compiled[stage] = jax.jit(jax.vmap(fn)).lower(worlds).compile()
+      compiled[stage] = jax.jit(fn).lower(worlds).compile()
       compiled_s = time.perf_counter() - t0
       jax.block_until_ready(compiled[stage](worlds))  # Warm-up.
       compiled[stage] = (compiled[stage], compiled_s)
@@ -163,7 +164,7 @@ def write(tables, args, header, wall_s) -> None:
       "# Where a step's time goes",
       "",
       f"`python benchmarks/profile_step.py --batch {args.batch}{' --smoke' * args.smoke}`, {header}; {wall_s:.0f} s. "
-      f"Each row: one jitted, vmapped call over {args.batch} identical settled worlds, "
+      f"Each row: one jitted call of the batch-minor core over {args.batch} identical settled worlds, "
       f"median of {args.repeats} rounds that time every stage once in turn, compile excluded. Each row adds stages to the one before, "
       "so the difference is what a stage costs.",
   ]
@@ -193,7 +194,7 @@ def write(tables, args, header, wall_s) -> None:
     lines += [f"| `{op}` | `{jax_name}` | {share:.1%} |" for op, jax_name, share in top]
   lines += [
       "",
-      "Reading the rows: the link table is the compaction of contacts into `[links, 4, n]`;",
+      "Reading the rows: the link table is the compaction of contacts into `[links, 4, n, B]`;",
       "the contact impulses are the velocity channel of the push hops plus the K hops that",
       "turn it into link impulses and friction units; `depth K` adds the hops beyond depth 0",
       "(backing K, push K + 1 with two channels, impulses K); friction adds its K transport",

@@ -3,6 +3,10 @@
 One table of named tolerances: float32 positions are O(10), so ~1e-6 relative.
 """
 
+import functools
+
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 import jaxchain as jc
@@ -44,3 +48,45 @@ def mixed_room(seed, n_boxes=20, n_tiles=3):
   half += rng.uniform(0.1, 0.5, (n_boxes, 2)).tolist()
   mass = np.r_[np.full(4 + n_tiles, np.inf), rng.uniform(0.5, 2.0, n_boxes)]
   return scenes.Scene(np.asarray(pos), np.asarray(half), mass)
+
+
+# --- The core's stages on one world (`B = 1`), for tests of a single stage ---------------
+# The core is batch minor: `[2, n, B]` positions, `[W, n, B]` candidate tables, `[B]`
+# status. These helpers run a stage on one world and read its tables back as `[n, ...]`.
+
+
+def xy(x):
+  """`[n, 2]` -> `[2, n, 1]`, the core's layout of one world."""
+  return jnp.asarray(x).T[..., None]
+
+
+def bodies_of(world):
+  """The core's `Bodies` of one world (`B = 1`)."""
+  return jc.core.from_world(world)[1]
+
+
+def dense_candidates(world):
+  """Dense pairs of one world, `[n, n, 1]`."""
+  return jc.core.pairs.dense(jnp.asarray(world.active)[:, None])
+
+
+def contact_table(world, cand, skin, pos=None, **kwargs):
+  """`(code, overlap, partner)` of `core.contacts.contacts` on one world, each `[n, W]`
+  (row i, candidate slot k): code 0..3 a link in that direction, 4 none."""
+  pos = world.pos if pos is None else pos
+  c = _contacts(xy(pos), xy(world.half), cand, skin, **kwargs)
+  row = lambda x: np.asarray(x)[..., 0].T
+  return row(c.code), row(c.overlap), row(cand.index())
+
+
+@functools.partial(jax.jit, static_argnames="skin")
+def _contacts(pos, half, cand, skin, **kwargs):
+  return jc.core.contacts.contacts(pos, half, cand, skin, **kwargs)
+
+
+def contact_set(world, cand, skin):
+  """`{(i, j, direction, depth)}` of the links of movable bodies i, depth to 6 places."""
+  code, overlap, idx = contact_table(world, cand, skin)
+  movable = np.asarray(world.movable)
+  return {(int(i), int(idx[i, k]), int(code[i, k]), round(max(float(overlap[i, k]), 0.0), 6))
+          for i, k in zip(*np.nonzero(code < 4)) if movable[i]}

@@ -1,5 +1,6 @@
 """Grid broadphase: same contacts and answers as dense pairs, overflow never silent."""
 
+import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -8,8 +9,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import jaxchain as jc
-from jaxchain import broadphase, geometry, scenes, sizing, status
-from tests.helpers import TOL, mixed_room as room
+from jaxchain import broadphase, core, scenes, sizing, status
+from tests.helpers import TOL, bodies_of, contact_set, dense_candidates, mixed_room as room, xy
 
 N = 32  # Every scene is padded to this: one compile per config.
 SKIN = 1e-4
@@ -20,18 +21,15 @@ GRID = jc.Config(gravity=False, depth=6, iterations=2, broadphase="grid", grid=S
 DENSE = GRID.replace(broadphase="dense")
 
 
-grid_fn = jax.jit(broadphase.grid, static_argnames=("spec", "skin"))
-contacts_fn = jax.jit(geometry.contacts, static_argnames="skin")
+@functools.partial(jax.jit, static_argnames=("spec", "skin"))
+def grid_fn(pos, half, active, movable, spec, skin):
+  """The core's grid table of one world: `([m, n, 1] candidates, status)`."""
+  cand, code = core.pairs.grid(xy(pos), xy(half), active[:, None], movable[:, None], spec, skin)
+  return cand, code[0]
 
 
 def links(world, cand):
-  c = contacts_fn(world.pos, world.half, cand, SKIN)
-  idx = np.asarray(cand.partner_index())
-  out = set()
-  for i, k in zip(*np.nonzero(np.asarray(c.link))):
-    if bool(world.movable[i]):
-      out.add((int(i), int(idx[i, k]), int(c.direction[i, k]), round(float(c.depth[i, k]), 6)))
-  return out
+  return contact_set(world, cand, SKIN)
 
 
 @given(st.integers(0, 2**31 - 1))
@@ -39,7 +37,7 @@ def test_grid_finds_the_same_contacts_as_dense(seed):
   world = room(seed).world().pad(N)
   cand, code = grid_fn(world.pos, world.half, world.active, world.movable, SPEC, SKIN)
   assert int(code) == 0
-  assert links(world, cand) == links(world, broadphase.dense(world.active))
+  assert links(world, cand) == links(world, dense_candidates(world))
 
 
 @given(st.integers(0, 2**31 - 1))
@@ -118,9 +116,9 @@ def test_padded_inactive_bodies_never_enter_the_grid():
   world = world.replace(pos=world.pos.at[27:].set(world.pos[10]))
   cand, code = grid_fn(world.pos, world.half, world.active, world.movable, SPEC, SKIN)
   assert int(code) == 0
-  listed = np.asarray(cand.partner_index())[np.asarray(cand.mask)]
+  listed = np.asarray(cand.index())[np.asarray(cand.mask)]
   assert not np.isin(listed, np.arange(27, N)).any()
-  assert not np.asarray(cand.mask)[27:].any()
+  assert not np.asarray(cand.mask)[:, 27:].any()
 
 
 def test_vmap_over_worlds_of_different_layouts():
@@ -150,7 +148,7 @@ def test_allocate_sizes_from_the_scene():
   assert spec.cell >= 2 * spec.reach
   cand, code = grid_fn(world.pos, world.half, world.active, world.movable, spec, SKIN)
   assert int(code) == 0
-  assert links(world, cand) == links(world, broadphase.dense(world.active))
+  assert links(world, cand) == links(world, dense_candidates(world))
 
 
 def test_config_rejects_grid_without_spec():
@@ -207,7 +205,21 @@ def partners_within(world, reach):
   return near.sum(1)
 
 
-build_fn = jax.jit(broadphase.build, static_argnames="config")
+@functools.partial(jax.jit, static_argnames="config")
+def build_fn(pos, world, config):
+  """The core's neighbour table of one world at `pos`, its rows read as `[n, w]`."""
+  return core.pairs.build(xy(pos), bodies_of(world), config)
+
+
+def rows(table):
+  """`(idx, mask)` of a neighbour table of one world, `[n, w]` each."""
+  return (np.asarray(table.cand.idx)[..., 0].T, np.asarray(table.cand.mask)[..., 0].T)
+
+
+def candidates_at(pos, world, config, table):
+  """The table a pass at `pos` reads, and its status (one world)."""
+  cand, code = core.pairs.candidates(xy(pos), bodies_of(world), config, table)
+  return cand, code[0]
 
 
 @given(small_rooms())
@@ -245,7 +257,7 @@ def test_neighbor_rows_are_the_partners_within_the_margin_in_body_order(world):
   table = build_fn(world.pos, world, NEAR)
   reach = broadphase.neighbor_reach(NEAR.skin, NEAR.margin)
   p, h = np.asarray(world.pos, np.float64), np.asarray(world.half, np.float64)
-  idx, mask = np.asarray(table.cand.idx), np.asarray(table.cand.mask)
+  idx, mask = rows(table)
   for i in range(NB):
     want = [j for j in range(NB) if j != i and bool(world.active[j]) and bool(world.movable[i])
             and np.all(np.abs(p[j] - p[i]) - (h[i] + h[j]) <= reach)]
@@ -253,7 +265,7 @@ def test_neighbor_rows_are_the_partners_within_the_margin_in_body_order(world):
     if len(want) <= WIDTH:
       assert got == want
     else:
-      assert got == want[:WIDTH] and int(table.code) & status.NEIGHBOR_OVERFLOW
+      assert got == want[:WIDTH] and int(table.code[0]) & status.NEIGHBOR_OVERFLOW
 
 
 def test_full_neighbor_row_is_reported():
@@ -273,17 +285,17 @@ def test_motion_past_half_the_margin_is_reported_not_missed():
   world = jc.World.create([[0.0, 0.0], [1.5, 0.0]], [0.5, 0.5], 1.0, gravity=(0.0, 0.0))
   cfg = jc.Config(gravity=False, neighbors=4, margin=0.6)
   table = build_fn(world.pos, world, cfg)
-  assert np.asarray(table.cand.mask)[0].sum() == 1  # 0.5 apart: within the margin.
+  assert rows(table)[1][0].sum() == 1  # 0.5 apart: within the margin.
   moved = world.pos.at[1, 0].set(1.05)
-  _, code = broadphase.candidates(moved, world, cfg, table)
+  _, code = candidates_at(moved, world, cfg, table)
   assert int(code) == status.NEIGHBOR_MARGIN
-  _, code = broadphase.candidates(world.pos.at[1, 0].set(1.25), world, cfg, table)
+  _, code = candidates_at(world.pos.at[1, 0].set(1.25), world, cfg, table)
   assert int(code) == 0  # 0.25 < 0.3: still exact.
   # A pair outside the margin at the build that then meets: the bit, never a silent miss.
   narrow = cfg.replace(margin=0.2)
   table = build_fn(world.pos, world, narrow)
   assert not np.asarray(table.cand.mask).any()
-  cand, code = broadphase.candidates(moved, world, narrow, table)
+  cand, code = candidates_at(moved, world, narrow, table)
   assert int(code) == status.NEIGHBOR_MARGIN and not np.asarray(cand.mask).any()
 
 
@@ -305,10 +317,10 @@ def test_padded_inactive_bodies_never_enter_the_neighbor_table():
   world = world.replace(pos=world.pos.at[27:].set(world.pos[10]))  # Padding piled on a box.
   cfg = jc.Config(neighbors=10, margin=0.2)
   table = build_fn(world.pos, world, cfg)
-  listed = np.asarray(table.cand.idx)[np.asarray(table.cand.mask)]
-  assert not np.isin(listed, np.arange(27, N)).any()
-  assert not np.asarray(table.cand.mask)[27:].any()
-  assert not np.asarray(table.cand.mask)[np.asarray(~world.movable)].any()  # Immovable rows.
+  idx, mask = rows(table)
+  assert not np.isin(idx[mask], np.arange(27, N)).any()
+  assert not mask[27:].any()
+  assert not mask[np.asarray(~world.movable)].any()  # Immovable rows.
 
 
 def test_neighbor_table_from_the_grid_matches_dense():

@@ -68,13 +68,15 @@ def _jaxpr_lines(config, world):
 
 
 def _pair_ops(config, world) -> int:
-  """Equations of the step (in every sub-jaxpr) with an `[n, n]` output: per-pair work."""
+  """Equations of the step (in every sub-jaxpr) with a per-pair output: `[n, n]` pairs of
+  one world, `[..., n, n, 1]` in the core's batch-minor layout."""
   n = world.num_bodies
 
   def count(jaxpr) -> int:
     total = 0
     for eqn in jaxpr.eqns:
-      total += sum(getattr(v.aval, "shape", None) == (n, n) for v in eqn.outvars)
+      total += sum(tuple(getattr(v.aval, "shape", ()))[-3:] in ((n, n, 1),)
+                   or getattr(v.aval, "shape", None) == (n, n) for v in eqn.outvars)
       for sub in jax.extend.core.jaxprs_in_params(eqn.params):
         total += count(sub)
     return total

@@ -666,17 +666,15 @@ def test_a_parameter_out_of_its_domain_inside_traced_code_is_reported(field, val
 
 
 def test_energy_scale_keeps_dissipative_updates_and_scales_down_gaining_ones():
-  front = jc.geometry.Links(None, jnp.zeros((2, 4, 2), bool), jnp.zeros((2, 4, 2)),  # [l, 4, n]
-                            jc.broadphase.dense(jnp.ones(2, bool)))
-  vel, mass = jnp.array([[1.0, 0.0], [-1.0, 0.0]]), jnp.array([1.0, 1.0])
-  v_dir = jnp.zeros((4, 2))
-  stop = -vel  # Inelastic: both stop. Kinetic energy 1 -> 0.
-  assert float(jc.chain.energy_scale(vel, stop, jnp.zeros((2, 4, 2)), front, mass,
-                                     jnp.zeros(2, bool), v_dir)) == 1.0
-  swap = -3.0 * vel  # Fly apart at twice the speed: energy 1 -> 4, the optimum is 1/3.
-  scale = float(jc.chain.energy_scale(vel, swap, jnp.zeros((2, 4, 2)), front, mass,
-                                      jnp.zeros(2, bool), v_dir))
-  np.testing.assert_allclose(scale, 1.0 / 3.0, rtol=1e-6)
+  # Two bodies (one world, batch minor: [2, n, B]) and an empty link table [l, 4, n, B].
+  front = jc.core.contacts.Links.of(None, jnp.zeros((2, 4, 2, 1), bool), jnp.zeros((2, 4, 2, 1)))
+  vel, mass = jnp.array([[1.0, -1.0], [0.0, 0.0]])[..., None], jnp.ones((2, 1))
+  v_dir, impulse = jnp.zeros((4, 2, 1)), jnp.zeros((2, 4, 2, 1))
+  energy_scale = lambda change: float(jc.core.chain.energy_scale(
+      vel, change, impulse, front, mass, jnp.zeros((2, 1), bool), v_dir)[0])
+  assert energy_scale(-vel) == 1.0  # Inelastic: both stop. Kinetic energy 1 -> 0.
+  # Fly apart at twice the speed: energy 1 -> 4, the optimum is 1/3.
+  np.testing.assert_allclose(energy_scale(-3.0 * vel), 1.0 / 3.0, rtol=1e-6)
 
 
 def test_a_scaled_update_is_reported(monkeypatch):

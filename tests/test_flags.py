@@ -372,7 +372,7 @@ def test_swept_overlap_of_a_straight_motion(begin, end, want):
   b = [jnp.float32(x) for x in begin]
   e = [jnp.float32(x) for x in end]
   r = [jnp.float32(0.25), jnp.float32(0.25)]
-  assert bool(jc.flags._swept_overlap(b, e, r)) is want
+  assert bool(jc.core.flags.swept_overlap(b, e, r)) is want
 
 
 # --- One-way bodies under crushes and margin snaps (issue 18, items 4 and 5) -------------

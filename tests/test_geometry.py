@@ -4,15 +4,18 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxchain import broadphase, geometry
+import jaxchain as jc
+from tests.helpers import contact_table, dense_candidates
 
 HALF = jnp.full((2, 2), 0.5)
 
 
-def contact(p1, skin=1e-4, half=HALF):
-  pos = jnp.array([[0.0, 0.0], p1])
-  c = geometry.contacts(pos, half, broadphase.dense(jnp.ones(2, bool)), skin)
-  return bool(c.link[0, 1]), int(c.direction[0, 1]), float(c.depth[0, 1]), c
+def contact(p1, skin=1e-4, half=HALF, active=(True, True)):
+  """`(link, direction, depth, code)` of the pair (0, 1) seen from body 0 (`code` is the
+  `[2, 2]` table: row i, partner slot j; 4 where no link)."""
+  world = jc.World.create([[0.0, 0.0], p1], half, 1.0, active=np.array(active))
+  code, overlap, _ = contact_table(world, dense_candidates(world), skin)
+  return bool(code[0, 1] < 4), int(code[0, 1]), max(float(overlap[0, 1]), 0.0), code
 
 
 @pytest.mark.parametrize("p1, direction, depth", [
@@ -29,7 +32,7 @@ def test_direction_and_depth(p1, direction, depth):
   assert link and d == direction
   np.testing.assert_allclose(got_depth, depth, atol=1e-6)
   # The same contact seen from the other body points the other way.
-  assert int(c.direction[1, 0]) == direction ^ 1 and bool(c.link[1, 0])
+  assert int(c[1, 0]) == direction ^ 1
 
 
 def test_links_within_skin_only():
@@ -41,6 +44,5 @@ def test_links_within_skin_only():
 
 
 def test_masked_candidates_are_not_links():
-  pos = jnp.array([[0.0, 0.0], [0.5, 0.0]])
-  c = geometry.contacts(pos, HALF, broadphase.dense(jnp.array([True, False])), 1e-4)
-  assert not bool(c.link.any()) and float(c.depth.max()) == 0.0
+  _, _, _, code = contact([0.5, 0.0], active=(True, False))
+  assert np.all(code == 4)

@@ -11,8 +11,8 @@ SRC = pathlib.Path(__file__).resolve().parents[1] / "src" / "jaxchain"
 
 # Every module of src/jaxchain (but the package's __init__), in dependency order: each
 # may import only modules before it.
-ORDER = ("reference", "gather", "sharding", "status", "world", "scenes", "geometry", "flags", "metrics", "broadphase", "sizing",
-         "config", "chain", "velocity", "stepping", "queries", "levels", "drawing", "env", "bridges", "cli")
+ORDER = ("reference", "sharding", "status", "world", "scenes", "broadphase", "core", "flags", "metrics",
+         "sizing", "config", "stepping", "queries", "levels", "drawing", "env", "bridges", "cli")
 
 
 def _jaxchain_imports(node: ast.AST) -> list[str]:

@@ -1,5 +1,6 @@
 """Compact link tables: the same answers as the full candidate table, overflow never silent."""
 
+import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -9,7 +10,7 @@ from hypothesis import strategies as st
 from jax.test_util import check_grads
 
 import jaxchain as jc
-from jaxchain import geometry, scenes, sizing, status
+from jaxchain import core, scenes, sizing, status
 from tests.helpers import TOL, mixed_room
 
 N = 32  # Every room is padded to this: one compile per config.
@@ -19,15 +20,21 @@ FULL = jc.Config(gravity=False, depth=6, iterations=2)
 COMPACT = {"dense": FULL.replace(links=4),
            "grid": FULL.replace(links=4, broadphase="grid", grid=SPEC)}
 
-first_set = jax.jit(geometry.first_set, static_argnames="limit")
+@functools.partial(jax.jit, static_argnames="limit")
+def first_set(sel, limit):
+  """The core's compaction (`pairs.pack`, `pairs.peel`) along the last axis of `sel`:
+  `(slot, valid, overflow)`, slot-major, overflow over everything."""
+  words = core.pairs.pack(lambda k: sel[..., k], sel.shape[-1])
+  slot, valid, rest = core.pairs.peel(words, limit)
+  return slot, valid, jnp.any(rest)
 measure = jax.jit(jax.vmap(lambda w: sizing.measure(
     w.pos, w.half, w.active, w.movable, spec=None, skin=1e-4, max_hops=N)[1]))
 
 
-@pytest.mark.parametrize("m, limit", [(5, 3), (24, 2), (25, 4), (48, 4), (70, 6)])
+@pytest.mark.parametrize("m, limit", [(5, 3), (32, 2), (33, 4), (64, 4), (70, 6)])
 @given(seed=st.integers(0, 2**31 - 1))
 def test_first_set_finds_the_first_entries_of_each_row(m, limit, seed):
-  # Word boundaries (24 bits a word) at 24, 25 and 48; rows from empty to full.
+  # Word boundaries (32 bits a word) at 32, 33 and 64; rows from empty to full.
   rng = np.random.default_rng(seed)
   sel = rng.random((4, 6, m)) < rng.uniform(0, 1, (4, 6, 1))
   slot, valid, overflow = map(np.asarray, first_set(jnp.asarray(sel), limit=limit))
@@ -40,10 +47,10 @@ def test_first_set_finds_the_first_entries_of_each_row(m, limit, seed):
 
 
 def test_first_set_under_jit_and_vmap_matches_one_world_at_a_time():
-  # The packing is a matrix product followed by elementwise peels: the pattern jax 0.10.2
-  # miscompiles on CPU under vmap (jax-ml/jax#39103); batched must equal unbatched.
+  # The packing is an unrolled walk followed by peels in a scan; under vmap (the pattern
+  # jax 0.10.2 miscompiles on CPU, jax-ml/jax#39103) batched must equal unbatched.
   sel = jnp.asarray(np.random.default_rng(0).random((16, 4, 12, 30)) < 0.2)
-  batched = jax.jit(jax.vmap(lambda s: geometry.first_set(s, 3)))(sel)
+  batched = jax.jit(jax.vmap(lambda s: first_set(s, 3)))(sel)
   for b in range(sel.shape[0]):
     for got, want in zip(batched, first_set(sel[b], limit=3)):
       np.testing.assert_array_equal(got[b], want)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import jaxchain as jc
-from jaxchain import geometry, queries
+from jaxchain import core, queries
 
 INF = float("inf")
 CAP = 10
@@ -554,7 +554,7 @@ def test_drop_through_falls_to_the_floor_below():
   rest, _ = jc.rollout(w, cfg, 5)  # Resting on the ledge: the step holds it.
   np.testing.assert_allclose(rest.pos[2], [0.0, 2.5], atol=1e-5)
   dropped_world, dropped = jc.drop_through(rest, 2)
-  expected = 2.0 - (geometry.ONE_WAY_MARGIN + queries.DROP_EXTRA) * 0.6 + 0.5
+  expected = 2.0 - (core.contacts.ONE_WAY_MARGIN + queries.DROP_EXTRA) * 0.6 + 0.5
   assert bool(dropped)
   np.testing.assert_allclose(dropped_world.pos[2, 1], expected, **EXACT)
   final, _ = jc.rollout(dropped_world, cfg, 60)

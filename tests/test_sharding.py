@@ -30,7 +30,7 @@ from jax import lax
 
 import jaxchain
 from jaxchain import sharding
-from jaxchain.gather import take
+from jaxchain.core.layout import lane_index, take
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SRC = pathlib.Path(jaxchain.__file__).resolve().parents[1]  # The jaxchain under test.
@@ -202,36 +202,40 @@ HELPERS = textwrap.dedent("""
     import jax, jax.numpy as jnp, numpy as np
     from jax import lax
     from jax.sharding import AxisType, NamedSharding, PartitionSpec as P
-    from jaxchain.gather import take
+    from jaxchain.core.layout import lane_index, lanes_split, take
     from jaxchain.sharding import in_auto_axes
     jax.config.update("jax_numpy_rank_promotion", "raise")
 
     def per_world(x, idx, table):
-      # The patterns the step has that JAX 0.10.1 rejects under an explicit batch axis:
+      # The patterns JAX 0.10.1 rejects under an explicit batch axis:
       code = jnp.where(jnp.sum(x) > 0, 4, 0)                       # select_n of constants
       total = lax.fori_loop(0, 2, lambda i, c: c + jnp.sum(x), 0.0)  # unbatched scalar carry
       rows = table[jnp.argsort(x)]                                 # gather, unbatched operand
-      return code, total, rows, take(x, idx), take(table, idx)
+      return code, total, rows
+
+    def batch(x, idx):
+      # The core's gathers, batch minor: table [6, B], rows [5, B] (and a stack of two).
+      xm, im = x.T, idx.T
+      both = jnp.stack([xm, 2.0 * xm])
+      shifted = lane_index(im)[None] + jnp.asarray([0, 6], jnp.int32)[:, None, None] * (
+          1 if lanes_split() else x.shape[0])
+      return take(xm, lane_index(im)).T, jnp.moveaxis(take(both, shifted), -1, 0)
 
     rng = np.random.default_rng(0)
     x = jnp.asarray(rng.normal(size=(8, 6)).astype(np.float32))
     idx = jnp.asarray(rng.integers(0, 6, (8, 5)).astype(np.int32))
     table = jnp.asarray(rng.normal(size=6).astype(np.float32))
     fn = jax.jit(jax.vmap(lambda x, i: in_auto_axes(per_world, x, i, table)))
+    core = jax.jit(lambda x, i: in_auto_axes(batch, x, i, batched=True))
     want = [np.asarray(a) for a in fn(x, idx)]
-    # `take` alone (no in_auto_axes) on a batched table with batched, shared and unbatched
-    # tables or indices, and its gradient.
-    bare = jax.jit(jax.vmap(lambda x, i: (take(x, i), take(x, idx[0]), take(table, i),
-                                          jax.grad(lambda t: jnp.sum(jnp.sin(take(t, i))))(x))))
-    want_bare = [np.asarray(a) for a in bare(x, idx)]
+    want_core = [np.asarray(x)[np.arange(8)[:, None], np.asarray(idx)],
+                 np.stack([1.0, 2.0])[None, :, None] * np.asarray(x)[np.arange(8)[:, None], np.asarray(idx)][:, None]]
     report = {}
     for kind in ("explicit", "auto", "unset"):
       mesh = jax.make_mesh((2,), ("worlds",), axis_types=(
           AxisType.Auto if kind == "auto" else AxisType.Explicit,))
       put = lambda a: jax.device_put(a, NamedSharding(mesh, P("worlds")))
-      for f, w, label in ((fn, want, kind), (bare, want_bare, f"{kind}/take")):
-        if kind != "unset" and f is bare:
-          continue  # Under a context mesh jaxchain always calls take inside in_auto_axes.
+      for f, w, label in ((fn, want, kind), (core, want_core, f"{kind}/core")):
         with jax.set_mesh(mesh) if kind != "unset" else contextlib.nullcontext():
           compiled = f.lower(put(x), put(idx)).compile()
           got = compiled(put(x), put(idx))
@@ -245,43 +249,45 @@ HELPERS = textwrap.dedent("""
 
 
 def test_helpers_under_both_meshes_without_collectives():
-  """`in_auto_axes` around code JAX 0.10.1 rejects under explicit axes, with `take` inside:
-  the same bits as one device under both meshes and under an explicit mesh that is only
-  in the batch's type (no `jax.set_mesh`), and no collective in the program. `take`
-  alone under that last one too (it splits the batch as the type says)."""
+  """`in_auto_axes` around code JAX 0.10.1 rejects under explicit axes (per world, under
+  vmap), and around the core's batch-minor gathers (`core.layout.take`, the batch as a
+  whole): the same bits as one device under both meshes and under an explicit mesh that
+  is only in the batch's type (no `jax.set_mesh`), the outputs sharded over both
+  devices, and no collective in the program (with the batch spread over devices each
+  gather indexes its own world's lane: `core.layout.lanes_split`)."""
   done = subprocess.run([sys.executable, "-c", HELPERS], capture_output=True, text=True,
                         env=_env(2), timeout=TIMEOUT_S)
   assert done.returncode == 0, done.stderr[-3000:]
   report = json.loads(next(l for l in done.stdout.splitlines() if l.startswith("REPORT "))[7:])
   for kind in ("explicit", "auto", "unset"):
-    assert report[kind] == dict(same=True, collectives=0, sharded=[2] * 5), (kind, report)
-  assert report["unset/take"] == dict(same=True, collectives=0, sharded=[2] * 4), report
+    assert report[kind] == dict(same=True, collectives=0, sharded=[2] * 3), (kind, report)
+    assert report[f"{kind}/core"] == dict(same=True, collectives=0, sharded=[2] * 2), (kind, report)
 
 
-@pytest.mark.parametrize("x_batched, idx_batched", [(True, True), (False, True), (True, False)])
-def test_take_is_the_flat_gather_under_vmap_and_grad(x_batched, idx_batched):
-  """`gather.take` on one device, as the step uses it: under vmap, grad and a loop."""
-  flat_take = lambda a, i: take(a.reshape(-1), i)
+def test_take_is_one_flat_gather_and_matches_the_split_lanes(monkeypatch):
+  """`core.layout.take` on one device: one flat gather over `[R, B]` (the rows at
+  `lane_index`), and with the lanes split (several devices) a gather per lane; the same
+  values and gradients either way, and inside a loop (the chain's hops)."""
   rng = np.random.default_rng(1)
-  x = jnp.asarray(rng.normal(size=(4, 3, 5)).astype(np.float32))
-  idx = jnp.asarray(rng.integers(0, 15, (4, 2, 7)).astype(np.int32))
-  xs, ids = (x if x_batched else x[0]), (idx if idx_batched else idx[0])
-  axes = (0 if x_batched else None, 0 if idx_batched else None)
-  got = jax.jit(jax.vmap(flat_take, in_axes=axes))(xs, ids)
-  want = jax.vmap(lambda a, i: a.reshape(-1)[i], in_axes=axes)(xs, ids)
-  assert np.array_equal(got, want)
-  loss = lambda take: lambda a, i: jnp.sum(jnp.sin(take(a, i)) * jnp.arange(1.0, 8.0)[None])
-  plain = lambda a, i: a.reshape(-1)[i]
-  g = jax.vmap(jax.grad(loss(flat_take)), in_axes=axes)(xs, ids)
-  g_want = jax.vmap(jax.grad(loss(plain)), in_axes=axes)(xs, ids)
-  assert np.allclose(g, g_want, rtol=1e-6, atol=1e-6)
-  # Inside a loop whose carry starts unbatched (the chain's hops do that).
-  hop = lambda a, i: lax.fori_loop(0, 2, lambda _, c: c + flat_take(a + c[0, 0], i),
-                                   jnp.zeros(i.shape, a.dtype))
-  hop_want = lambda a, i: lax.fori_loop(0, 2, lambda _, c: c + plain(a + c[0, 0], i),
-                                        jnp.zeros(i.shape, a.dtype))
-  assert np.array_equal(jax.jit(jax.vmap(hop, in_axes=axes))(xs, ids),
-                        jax.vmap(hop_want, in_axes=axes)(xs, ids))
+  x = jnp.asarray(rng.normal(size=(3, 5, 4)).astype(np.float32))  # [k, n, B]
+  rows = jnp.asarray(rng.integers(0, 15, (2, 7, 4)).astype(np.int32))  # Rows of [15, B].
+  want = np.asarray(x).reshape(15, 4)[np.asarray(rows), np.arange(4)]
+
+  def run():
+    got = take(x, lane_index(rows))
+    loss = lambda a: jnp.sum(jnp.sin(take(a, lane_index(rows))) * jnp.arange(1.0, 8.0)[None, :, None])
+    hop = lax.fori_loop(0, 2, lambda _, c: c + take(x + c[0, 0, 0], lane_index(rows)),
+                        jnp.zeros(rows.shape, x.dtype))
+    return got, jax.grad(loss)(x), hop
+
+  flat = jax.jit(run)()
+  text = jax.jit(run).lower().as_text()
+  assert np.array_equal(flat[0], want)
+  monkeypatch.setattr(jax, "device_count", lambda: 2)  # Two devices: the lanes split.
+  split = run()
+  for a, b in zip(flat, split):
+    np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
+  assert text.count("gather(") <= 3  # The flat formulation: no per-lane batching dims.
 
 
 def test_sharding_docstring_examples():

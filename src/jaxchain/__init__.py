@@ -1,11 +1,11 @@
 """jaxchain: batched, differentiable 2D box collisions with collision chaining."""
 
-from jaxchain import broadphase, drawing, env, levels, metrics, queries, reference, scenes, sizing, status
+from jaxchain import (broadphase, core, drawing, env, levels, metrics, queries, reference, scenes, sizing,
+                      status)
 from jaxchain.broadphase import GridSpec
 from jaxchain.config import Config
 from jaxchain.drawing import render, render_trajectory, save_gif
 from jaxchain.flags import blocked, grounded
-from jaxchain.geometry import Candidates
 from jaxchain.queries import (RayHit, SlideInfo, drive_platforms, drop_through, move_and_slide,
                               query_aabb, query_point, raycast, touching_bodies)
 from jaxchain.status import check
@@ -13,8 +13,8 @@ from jaxchain.stepping import Trajectory, make_step, resolve, rollout, step
 from jaxchain.world import World, stack
 
 __all__ = [
-    "Candidates", "Config", "GridSpec", "RayHit", "SlideInfo", "Trajectory", "World", "blocked", "broadphase", "check",
-    "drawing", "drive_platforms", "drop_through", "env", "grounded", "levels", "make_step", "metrics", "move_and_slide",
+    "Config", "GridSpec", "RayHit", "SlideInfo", "Trajectory", "World", "blocked", "broadphase", "check",
+    "core", "drawing", "drive_platforms", "drop_through", "env", "grounded", "levels", "make_step", "metrics", "move_and_slide",
     "queries", "query_aabb", "query_point", "raycast", "reference", "render", "render_trajectory", "resolve", "rollout",
     "save_gif", "scenes", "sizing", "stack", "status", "step", "touching_bodies",
 ]

@@ -1,20 +1,14 @@
-"""Candidate pairs: a fixed-size neighbour table that the narrowphase consumes.
+"""The grid broadphase's static layout and its per-world table; host-side sizing.
 
-Every broadphase fills the same `geometry.Candidates` table, `[n, m]` neighbour
-indices plus a mask, so the chain resolver does not care how the candidates were
-found. The grid's static layout, `GridSpec`, lives here with the grid; `Config`
-(in `jaxchain.config`, which imports this module) holds one.
+`GridSpec` is the uniform grid's static layout (`Config.grid` holds one) and `allocate`
+sizes one from a world on the host. `grid` builds one world's candidate rows (a sort
+and a scatter per world); the core (`jaxchain.core.pairs`) builds it per world and
+hands it on batch minor. `neighbor_reach` and `grid_skin` are the neighbour table's
+gap thresholds, which `Config.for_world` and the core share.
 
-Two levels. A coarse source (`dense` all pairs, or the `grid` rows) lists every pair
-that could touch. With `Config.neighbors` set, `build` filters it once per (sub)step
-into a `Neighbors` table of width `Config.neighbors`: each movable body's partners
-within `Config.margin` (an AABB gap test on both axes), in the source's order. Every
-pass of the substep, and the sensors, read that narrow table (the pair stages then
-cost `n * neighbors` instead of `n * n`), and each use checks that no body has moved
-more than `margin / 2` along an axis since the build (`status.NEIGHBOR_MARGIN`); a
-row with more partners than the width sets `status.NEIGHBOR_OVERFLOW`. So the table
-never misses a pair silently (jax-md's `partition.neighbor_list`, with its
-`capacity` and `dr_threshold`, is the model).
+Every candidate table is exact: a full cell, a full static table or a body larger than
+the grid was built for sets a status bit, never a silent miss (jax-md's
+`partition.cell_list`, with its `did_buffer_overflow`, is the model).
 """
 
 from __future__ import annotations
@@ -25,10 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-
 from jaxchain import status
-from jaxchain.gather import take
-from jaxchain.geometry import Candidates, first_set
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,19 +76,8 @@ class GridSpec:
     return 9 * self.cell_capacity + self.static_capacity
 
 
-def dense(active: jax.Array) -> Candidates:
-  """All pairs of active bodies: `m = n`, the diagonal masked out. O(n^2).
-
-  Args:
-    active: `[n]` bool.
-  """
-  n = active.shape[0]
-  mask = active[:, None] & active[None, :] & ~jnp.eye(n, dtype=bool)
-  return Candidates(idx=None, mask=mask)
-
-
 def grid(pos: jax.Array, half: jax.Array, active: jax.Array, movable: jax.Array,
-         spec: GridSpec, skin: float) -> tuple[Candidates, jax.Array]:
+         spec: GridSpec, skin: float) -> tuple[jax.Array, jax.Array, jax.Array]:
   """Uniform-grid candidates: O(n) pairs with fixed capacity, overflow reported.
 
   Movable bodies are entered in the cell of their centre; each gets as candidates
@@ -119,7 +99,8 @@ def grid(pos: jax.Array, half: jax.Array, active: jax.Array, movable: jax.Array,
     skin: link tolerance (contacts up to this gap must be found).
 
   Returns:
-    `(candidates, status)`: an `[n, spec.row_size]` table and int32 status bits.
+    `(idx, mask, status)`: `[n, spec.row_size]` int32 partners (any valid index where
+    the mask is False) and bool mask, and int32 status bits.
   """
   n = pos.shape[0]
   nx, ny = spec.shape
@@ -166,7 +147,7 @@ def grid(pos: jax.Array, half: jax.Array, active: jax.Array, movable: jax.Array,
   code = (jnp.where(cell_full, status.CELL_OVERFLOW, 0)
           | jnp.where(static_full | (end[-1] > spec.static_entries), status.STATIC_OVERFLOW, 0)
           | jnp.where(too_large, status.BODY_TOO_LARGE, 0)).astype(jnp.int32)
-  return Candidates(idx=jnp.where(real, idx, 0), mask=mask), code
+  return jnp.where(real, idx, 0), mask, code
 
 
 # The 3x3 neighbourhood of a cell, as (dx, dy) offsets.
@@ -206,152 +187,9 @@ def neighbor_reach(skin: float, margin: float) -> float:
   return skin + margin * (1 + MARGIN_SLACK)
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class Neighbors:
-  """A candidate table built once per (sub)step and read by every pass (`build`).
-
-  Attributes:
-    cand: `[n, w]` candidates, `w = Config.neighbors`: row i lists, in the coarse
-      source's order (body order for dense pairs), the bodies within the margin of
-      movable body i when the table was built. Immovable bodies' rows are empty
-      (the resolver never reads them, as with the grid).
-    ref: `[n, 2]` the centres it was built at.
-    code: int32 status bits of the build: `NEIGHBOR_OVERFLOW` when a row had more
-      than `w` partners, and the grid's bits when the grid was the source.
-  """
-
-  cand: Candidates
-  ref: jax.Array
-  code: jax.Array
-
-
-def neighbors(pos: jax.Array, half: jax.Array, active: jax.Array, movable: jax.Array,
-              coarse: Candidates, *, width: int, reach: float) -> Neighbors:
-  """Compacts a coarse candidate table to the partners within `reach` (both axes).
-
-  A pair (i, j) of the coarse table stays when i is active and movable and their
-  boxes are at most `reach` apart along x and along y (`|p_j - p_i| - (h_i + h_j)
-  <= reach`, overlapping boxes included). The first `width` such slots of each row
-  are kept in slot order (`geometry`'s bit-packing compaction: no sort, no
-  scatter); a row with more sets `status.NEIGHBOR_OVERFLOW`.
-
-  Args:
-    pos, half: `[n, 2]`.
-    active, movable: `[n]` bool.
-    coarse: `[n, m]` candidates (dense or grid).
-    width: kept partners per body (static).
-    reach: the gap threshold (static).
-
-  Returns:
-    The `Neighbors` table at `pos` (its `code` holds the overflow bit only).
-  """
-  n = pos.shape[0]
-  near = coarse.mask & (active & movable)[:, None]
-  for k in (0, 1):
-    gap = jnp.abs(coarse.gather(pos[:, k]) - pos[:, k][:, None]) - (
-        half[:, k][:, None] + coarse.gather(half[:, k]))
-    near = near & (gap <= reach)
-  m = near.shape[-1]
-  if width >= m:  # Nothing to compact: the coarse table, filtered.
-    idx = coarse.partner_index()
-    cand = Candidates(idx=idx, mask=near)
-    return Neighbors(cand=cand, ref=pos, code=jnp.zeros((), jnp.int32))
-  slot, valid, overflow = first_set(near, width)  # [width, n] each, slot-major.
-  if coarse.idx is None:
-    idx = slot
-  else:
-    idx = take(coarse.idx.reshape(-1), slot + m * jnp.arange(n, dtype=slot.dtype)[None])
-  code = jnp.where(overflow, status.NEIGHBOR_OVERFLOW, 0).astype(jnp.int32)
-  return Neighbors(cand=Candidates(idx=idx.T, mask=valid.T), ref=pos, code=code)
-
-
-def moved(table: Neighbors, pos: jax.Array, active: jax.Array, margin: float) -> jax.Array:
-  """`status.NEIGHBOR_MARGIN` when an active body is more than `margin / 2` from
-  where `table` was built along an axis (pairs could then be missing), else 0."""
-  far = active[:, None] & (jnp.abs(pos - table.ref) > 0.5 * margin)
-  return jnp.where(jnp.any(far), status.NEIGHBOR_MARGIN, 0).astype(jnp.int32)
-
-
-def coarse(pos: jax.Array, world, config, skin: float | None = None
-           ) -> tuple[Candidates, jax.Array]:
-  """The coarse candidate table the config asks for, at `pos`: the grid rows
-  (`config.uses_grid`) or dense pairs, with the grid's status bits (0 for dense)."""
-  skin = config.skin if skin is None else skin
-  if config.uses_grid(world.num_bodies) and world.num_bodies > 0:
-    return grid(pos, world.half, world.active, world.movable, config.grid, skin)
-  return dense(world.active), jnp.zeros((), jnp.int32)
-
-
-def build(pos: jax.Array, world, config, start: jax.Array | None = None) -> Neighbors | None:
-  """The neighbour table of a (sub)step at `pos`, or None without `config.neighbors`.
-
-  Built from the coarse source (`coarse`, grown by the margin) with the partners
-  within `config.skin + config.margin` (plus `MARGIN_SLACK`); every pass of the
-  substep then reads it through `candidates`, which checks the margin against `pos`.
-  With `start` (a substep's start positions; `pos` is then where the bodies are
-  predicted to be), each body is taken as the box it sweeps from `start` to `pos`:
-  the table then also holds every pair that meets during that motion, which the
-  swept sensor test reads, and the margin need not cover the motion itself. With the
-  grid as the source, a body that sweeps more than the margin along an axis sets
-  `NEIGHBOR_MARGIN` (the grid's cells hold one margin more for it).
-
-  Under `vmap` every world builds its own table every substep: there is no
-  data-dependent rebuild to turn into a select.
-  """
-  if config.neighbors is None:
-    return None
-  reach = neighbor_reach(config.skin, config.margin)
-  spec = config.grid
-  use_grid = config.uses_grid(world.num_bodies) and world.num_bodies > 0
-  grid_skin = reach + config.margin  # One margin more: the swept extension.
-  if use_grid and spec.cell < 2 * spec.reach + grid_skin:
-    raise ValueError(
-        f"Config.grid: a neighbour table with margin {config.margin} needs cells of at least "
-        f"2 * reach + skin + 2 * margin (+ {MARGIN_SLACK:g} margin of slack) = "
-        f"{2 * spec.reach + grid_skin:.6g}, got {spec.cell:.6g}; allocate the grid with "
-        f"jaxchain.broadphase.allocate(world, skin=jaxchain.broadphase.grid_skin(skin, "
-        f"margin)) or use Config.for_world")
-  centre, half, code = pos, world.half, jnp.zeros((), jnp.int32)
-  if start is not None:
-    sweep = jnp.where(world.active[:, None], jnp.abs(pos - start), 0.0)
-    centre, half = 0.5 * (start + pos), half + 0.5 * sweep
-    if use_grid:
-      code = jnp.where(jnp.any(sweep > config.margin), status.NEIGHBOR_MARGIN, 0)
-  source, found = coarse(centre, world, config, skin=grid_skin)
-  table = neighbors(centre, half, world.active, world.movable, source, width=config.neighbors,
-                    reach=reach)
-  return Neighbors(cand=table.cand, ref=pos, code=(table.code | found | code).astype(jnp.int32))
-
-
 def grid_skin(skin: float, margin: float) -> float:
   """The `skin` to `allocate` a grid with when it is the source of a neighbour table."""
   return neighbor_reach(skin, margin) + margin
-
-
-def candidates(pos: jax.Array, world, config, table: Neighbors | None = None
-               ) -> tuple[Candidates, jax.Array]:
-  """The candidate table the config asks for, at positions `pos` (traced).
-
-  Args:
-    pos: `[n, 2]` centres.
-    world: the `World` (half-extents, active and movable masks).
-    config: a `Config`; only its `uses_grid`, `grid`, `skin`, `neighbors` and
-      `margin` are read (not imported here: `jaxchain.config` imports this module
-      for `GridSpec`).
-    table: with `config.neighbors`, the substep's `Neighbors` table (`build`); built
-      here at `pos` when None.
-
-  Returns:
-    `(candidates, status)`; status is int32 bits: the grid's, and with a neighbour
-    table its build bits and `NEIGHBOR_MARGIN` if a body has moved more than half
-    the margin since the build.
-  """
-  if config.neighbors is not None:
-    if table is None:
-      table = build(pos, world, config)
-    return table.cand, table.code | moved(table, pos, world.active, config.margin)
-  return coarse(pos, world, config)
 
 
 def allocate(world, skin: float = 1e-4, *, headroom: float = 2.0, max_cells: int | None = None

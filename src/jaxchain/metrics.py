@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxchain import flags, geometry
+from jaxchain.core import contacts
 from jaxchain.world import World
 
 
@@ -14,21 +14,23 @@ def penetration(world: World) -> jax.Array:
   least one movable, neither a sensor, and in layers that collide; 0 elsewhere.
   Depth is the overlap along the axis of smaller overlap, clipped at 0. A pair with
   a one-way member and no solid one (a one-way body blocks only what comes down onto
-  it: `geometry.ONE_WAY_MARGIN`) counts with the upper body's sink below the one-way
+  it: `core.contacts.ONE_WAY_MARGIN`) counts with the upper body's sink below the one-way
   top where the one-way rule lifts it out: at most the margin (deeper sinks pass
   through, or are crushes, flagged). Dense O(n^2)."""
   pos, half = world.pos, world.half
-  o = geometry.overlap(pos[:, None, :], half[:, None, :], pos[None], half[None])
+  o = half[:, None, :] + half[None] - jnp.abs(pos[None] - pos[:, None, :])  # Per axis.
   depth = jnp.maximum(jnp.minimum(o[..., 0], o[..., 1]), 0.0)
   pair = world.active[:, None] & world.active[None, :] & ~jnp.eye(pos.shape[0], dtype=bool)
   pair &= world.movable[:, None] | world.movable[None, :]
-  pair = flags.admit(geometry.Candidates(None, pair), world, layers=True, sensors=True).mask
+  col, row = (lambda x: x[:, None]), (lambda x: x[None, :])
+  pair &= contacts.admits(col(world.category), col(world.mask), col(world.sensor),
+                          row(world.category), row(world.mask), row(world.sensor))
   solid = world.active & (world.inv_mass == 0) & ~world.one_way
   vertical = ((world.one_way[:, None] | world.one_way[None, :])
               & ~solid[:, None] & ~solid[None, :])
   # i above j: i's bottom below j's top by `sink`; one pair entry per orientation.
   sink = (pos[None, :, 1] + half[None, :, 1]) - (pos[:, None, 1] - half[:, None, 1])
-  margin = geometry.ONE_WAY_MARGIN * (half[:, None, 1] + half[None, :, 1])
+  margin = contacts.ONE_WAY_MARGIN * (half[:, None, 1] + half[None, :, 1])
   above = pos[:, None, 1] > pos[None, :, 1]
   lifted = jnp.where(above & (o[..., 0] > 0) & (sink > 0) & (sink <= margin), sink, 0.0)
   depth = jnp.where(vertical, jnp.maximum(lifted, lifted.T), depth)

@@ -14,7 +14,7 @@ static arguments, with fixed output shapes and no Python loop over bodies:
   them (its riders, and what stands on those) by the change, with no friction needed;
 * `drop_through`: let a body standing on one-way platforms fall through them.
 
-Directions are those of `jaxchain.geometry.DIRECTIONS`: `0: +x, 1: -x, 2: +y, 3: -y`.
+Directions are those of `jaxchain.flags.DIRECTIONS`: `0: +x, 1: -x, 2: +y, 3: -y`.
 The pair queries (`touching_bodies`, `drive_platforms`, `drop_through`) build dense
 pairs, O(n^2) per world, like the dense broadphase; `raycast` sorts, O(n log n); the
 others are O(n).
@@ -34,13 +34,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxchain import broadphase, flags, geometry
+from jaxchain import core
 from jaxchain.config import Config
+from jaxchain.core.contacts import ONE_WAY_MARGIN
+from jaxchain.core.layout import NUM_DIRECTIONS
 from jaxchain.world import World
 
 SKIN = Config().skin  # The step's default link tolerance: faces this close touch.
 # `drop_through` moves a body this fraction of the summed half-heights past the one-way
-# margin (`geometry.ONE_WAY_MARGIN`), so rounding cannot leave it inside the margin.
+# margin (`core.contacts.ONE_WAY_MARGIN`), so rounding cannot leave it inside the margin.
 DROP_EXTRA = 0.01
 
 
@@ -101,19 +103,22 @@ def _category_filter(fn: str, world: World, mask) -> jax.Array:
   return (world.category & bits) != jnp.zeros((), jnp.uint32)
 
 
-def _pair_contacts(world: World, skin: float) -> geometry.Contacts:
-  """The step's contacts of every pair of active, solid, layer-admitted bodies, at the
-  current positions and velocities (dense pairs, `[n, n]`), as a pass that starts and
-  ends here sees them: the one-way rule reads `world.vel`, and corner contacts at the
-  seams of immovable surfaces take the surface's axis (`geometry.seam_axis`), so a body
-  whose edge is on the seam between two floor tiles touches no tile's side, whatever
-  the rounding."""
-  cand = flags.admit(broadphase.dense(world.active), world, layers=True, sensors=True)
-  fixed = world.active & (world.inv_mass == 0)
-  ow = geometry.OneWay(one_way=world.active & world.one_way, solid=fixed & ~world.one_way,
-                       vel=world.vel)
-  return geometry.contacts(world.pos, world.half, cand, skin, start=world.pos, one_way=ow,
-                           surface=fixed & ~world.one_way)
+def _pair_directions(world: World, skin: float) -> jax.Array:
+  """`[4, n, n]` bool: entry `(d, i, j)`, body j lies in direction d from body i and
+  touches it, by the step's contact rule (`core.contacts.contacts`) for every pair of
+  active, solid, layer-admitted bodies at the current positions and velocities, as a
+  pass that starts and ends here sees them: the one-way rule reads `world.vel`, and
+  corner contacts at the seams of immovable surfaces take the surface's axis
+  (`core.contacts.seam_axis`), so a body whose edge is on the seam between two floor
+  tiles touches no tile's side, whatever the rounding. The core at one world (`B = 1`)."""
+  state, bodies = core.from_world(world)
+  cand = core.contacts.admit(core.pairs.dense(bodies.active), bodies, layers=True, sensors=True)
+  solid = bodies.fixed & ~bodies.one_way
+  ow = core.contacts.OneWay(one_way=bodies.active & bodies.one_way, solid=solid, vel=state.vel)
+  c = core.contacts.contacts(state.pos, bodies.half, cand, skin, start=state.pos, one_way=ow,
+                             surface=solid)
+  code = c.code[..., 0].T  # [n, n]: row i, partner j.
+  return code[None] == jnp.arange(NUM_DIRECTIONS, dtype=code.dtype)[:, None, None]
 
 
 # --- touching_bodies --------------------------------------------------------------------
@@ -124,13 +129,13 @@ def touching_bodies(world: World, *, k: int = 4, skin: float = SKIN
   """Which bodies each body touches now, per direction: `[n, 4, k]` indices.
 
   Entry `(i, d, s)` is the s-th body (by index) that lies in direction d from body i
-  (`geometry.DIRECTIONS`: +x, -x, +y, -y) and touches it, or -1. "Touches" is the
-  contact rule of a pass of `jc.step` (`geometry.contacts`) at the current positions:
+  (`jc.flags.DIRECTIONS`: +x, -x, +y, -y) and touches it, or -1. "Touches" is the
+  contact rule of a pass of `jc.step` (`core.contacts.contacts`) at the current positions:
   the pair's contact axis is the one of smaller overlap (ties x); along it the faces
   are within `skin` or overlap, and along the other axis the boxes overlap strictly
   (a corner contact is none). Only active, non-sensor pairs that collision layers admit
   count (`category[i] & mask[j]` and `category[j] & mask[i]` both nonzero), and a pair
-  with a one-way body follows the one-way rule of the step (`geometry._one_way_rule`,
+  with a one-way body follows the one-way rule of the step (`core.contacts.one_way_rule`,
   reading `world.vel`): a body resting on a one-way platform touches it downward (and
   the platform touches the body upward), a body rising through it touches nothing.
 
@@ -138,11 +143,11 @@ def touching_bodies(world: World, *, k: int = 4, skin: float = SKIN
   `World.touching` (written by a step, movable bodies only), every body has rows,
   immovable ones included (a platform's `+y` row lists its riders). Corner contacts at
   the seams of immovable surfaces take the surface's axis as in the step
-  (`geometry.seam_axis`): a box whose edge is on the seam between two floor tiles stands
+  (`core.contacts.seam_axis`): a box whose edge is on the seam between two floor tiles stands
   on them and touches no tile's side, whatever the rounding. A step's contact axes also
   read the step's motion (time of impact); here there is none, so at rest the two agree.
 
-  O(n^2): dense pairs, compacted with `geometry.first_set`.
+  O(n^2): dense pairs; the first `k` per row by a running count.
 
   Args:
     world: a single world (`jax.vmap` it for a batch).
@@ -175,9 +180,10 @@ def _touching_bodies(world: World, k: int, skin: float) -> tuple[jax.Array, jax.
   n = world.num_bodies
   if n == 0:
     return jnp.zeros((0, 4, k), jnp.int32), jnp.zeros((0,), bool)
-  sel = geometry.by_direction(_pair_contacts(world, skin))  # [4, n, n]
-  slot, valid, _ = geometry.first_set(sel, k)  # [k, 4, n]
-  index = jnp.where(valid, slot, -1).astype(jnp.int32)
+  sel = _pair_directions(world, skin)  # [4, n, n]
+  rank = jnp.cumsum(sel, axis=-1, dtype=jnp.int32)  # Touching partners up to j.
+  index = jnp.stack([jnp.where(jnp.any(hit, axis=-1), jnp.argmax(hit, axis=-1), -1)
+                     for hit in (sel & (rank == s + 1) for s in range(k))]).astype(jnp.int32)
   overflow = jnp.any(jnp.sum(sel, axis=-1) > k, axis=0)
   return jnp.transpose(index, (2, 1, 0)), overflow
 
@@ -298,7 +304,7 @@ def raycast(world: World, origin, direction, max_distance=float("inf"), *, mask=
   `(1e-30, -1e-30)` too). Gradient-safe: the distance and point of a hit are
   differentiable in `origin`, `direction` and the bodies' positions and sizes, also
   for axis-aligned rays (a direction component of 0 takes no division; the
-  normalisation is guarded: `chain.safe_divide`'s double `where`). O(n log n): the
+  normalisation is guarded: `core.layout.safe_divide`'s double `where`). O(n log n): the
   seams sort the bodies along the ray.
 
   Args:
@@ -456,7 +462,7 @@ def move_and_slide(world: World, body, velocity, dt, *, skin: float = SKIN
   velocity component zeroed); moves that leave the overlap, or slide along it (a body
   sunk into a floor running sideways), are free, and nothing pushes it out. A
   one-way body blocks only a downward move whose bottom starts at or above its top, up
-  to the step's one-way margin (`geometry.ONE_WAY_MARGIN` of the summed half-heights),
+  to the step's one-way margin (`core.contacts.ONE_WAY_MARGIN` of the summed half-heights),
   and is then landed on flush; other moves pass it (from below, from the sides, and
   after `drop_through`).
 
@@ -528,7 +534,7 @@ def _sweep(world: World, obstacle: jax.Array, p: jax.Array, h: jax.Array, axis: 
   # in the step): moving toward its centre would go deeper, so the body stays put.
   deeper = ~world.one_way & (gap < -skin) & ((-gap <= side) if axis == 0 else (-gap < side))
   if axis == 1:  # A one-way body stops only a fall that starts above it (its margin).
-    margin = geometry.ONE_WAY_MARGIN * reach[:, 1]
+    margin = ONE_WAY_MARGIN * reach[:, 1]
     solid = solid | (world.one_way & (move < 0) & (gap >= -margin))
   else:
     solid = solid & ~world.one_way
@@ -667,8 +673,7 @@ def _supports(world: World, skin: float) -> tuple[jax.Array, jax.Array, jax.Arra
   """Per body: whether it stands on something, the support under the widest part of
   its bottom face (ties: lower index), and whether every support is one-way; also the
   `[n, n]` support matrix. (`touching_bodies`' `-y` rows, uncompacted.)"""
-  c = _pair_contacts(world, skin)
-  below = geometry.by_direction(c)[3]  # [n, n]: j touches i from below.
+  below = _pair_directions(world, skin)[3]  # [n, n]: j touches i from below.
   d = world.pos[None, :, 0] - world.pos[:, None, 0]
   width = world.half[:, None, 0] + world.half[None, :, 0] - jnp.abs(d)
   best = jnp.argmax(jnp.where(below, width, -jnp.inf), axis=-1).astype(jnp.int32)
@@ -743,7 +748,7 @@ def _drop_through(world: World, i: jax.Array, skin: float) -> tuple[World, jax.A
   dropped = jnp.any(row) & ~jnp.any(row & ~world.one_way) & live
   h = world.half[i, 1]
   top = world.pos[:, 1] + world.half[:, 1]
-  bottom = top - (geometry.ONE_WAY_MARGIN + DROP_EXTRA) * (world.half[:, 1] + h)
+  bottom = top - (ONE_WAY_MARGIN + DROP_EXTRA) * (world.half[:, 1] + h)
   y = jnp.min(jnp.where(row, bottom + h, jnp.inf))
   y = jnp.minimum(y, world.pos[i, 1])  # Only ever down.
   new = jnp.where(dropped, y, world.pos[i, 1])

@@ -5,16 +5,16 @@ A batch of worlds (a `World` with a leading batch axis) shards over devices with
 and a `jax.vmap`-ped step under `jax.set_mesh(mesh)`. Worlds never interact, so the
 step needs no communication, under both mesh axis types:
 
-* `in_auto_axes` runs a per-world computation with the context mesh's explicit axes
-  switched to `AxisType.Auto`. The mesh `jax.make_mesh` builds by default has explicit
-  axes, and under them JAX 0.10.1 type-checks every batched op. Some of its batching
-  rules reject a sharded batch axis that the same program runs fine with in Auto mode
-  (see `in_auto_axes`); inside, the compiler partitions the batch as in Auto mode,
-  bit-identically and without collectives. `jc.step`, `jc.rollout`, `jc.resolve` and
-  `jc.make_step` run their body in it.
-* `jaxchain.gather.take`, the gather of every chain hop, gathers per block of worlds
-  that lives on one device, never across the whole batch (which would make XLA
-  all-gather the table on every hop).
+* `in_auto_axes` runs a computation (the core on a whole batch, or per-world code under
+  `vmap`) with the context mesh's explicit axes switched to `AxisType.Auto`. The mesh
+  `jax.make_mesh` builds by default has explicit axes, and under them JAX 0.10.1
+  type-checks every batched op. Some of its batching rules reject a sharded batch axis
+  that the same program runs fine with in Auto mode (see `in_auto_axes`); inside, the
+  compiler partitions the batch as in Auto mode, bit-identically and without
+  collectives. `jc.step`, `jc.rollout`, `jc.resolve` and `jc.make_step` run the core in it.
+* `jaxchain.core.layout.take`, the gather of every chain hop, indexes each world's own
+  lane when the batch spans devices (`core.layout.lanes_split`), never across the whole
+  batch (which would make XLA all-gather the table on every hop).
 
 `jax.set_mesh` is not needed: a batch placed on a mesh with explicit axes carries the
 mesh in its type (`jax.typeof(x).sharding.mesh`), and `in_auto_axes` takes it from

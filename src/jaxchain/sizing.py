@@ -21,8 +21,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxchain import broadphase, geometry
+from jaxchain import broadphase
 from jaxchain.broadphase import allocate
+from jaxchain.core import contacts as core_contacts
+from jaxchain.core import pairs as core_pairs
+from jaxchain.core.layout import NUM_DIRECTIONS
 
 __all__ = ["DENSE_MAX_BODIES", "MAX_SUBSTEPS", "MIN_LINKS", "MIN_NEIGHBORS", "allocate",
            "for_world", "link_bound", "measure", "measure_neighbors", "measure_table", "neighbor_sizing"]
@@ -235,6 +238,26 @@ def _substep_need(world, dt: float, gravity=0.0, safety: float = 1.25) -> _Subst
                       float(thinnest[worst[-1]]), safety)
 
 
+def _minor(pos, half, active, movable):
+  """Host arrays of a world (`[n, ...]`) or a batch (`[B, n, ...]`) -> the core's
+  batch-minor layout: `pos`, `half` `[2, n, B]`, `active`, `movable` `[n, B]`."""
+  pos, half, active, movable = (jnp.asarray(x) for x in (pos, half, active, movable))
+  if pos.ndim == 2:
+    pos, half, active, movable = (x[None] for x in (pos, half, active, movable))
+  xy = lambda x: jnp.moveaxis(x, (0, 2), (2, 0))
+  return xy(pos), xy(half), active.T, movable.T
+
+
+def _candidates(pos, half, active, movable, spec, skin) -> core_pairs.Candidates:
+  if spec is None:
+    return core_pairs.dense(active)
+  return core_pairs.grid(pos, half, active, movable, spec, skin)[0]
+
+
+def _per_world(single: bool, *xs):
+  return tuple(x[0] for x in xs) if single else xs
+
+
 @functools.partial(jax.jit, static_argnames=("spec", "skin"))
 def measure(pos, half, active, movable, max_hops, *, spec: broadphase.GridSpec | None,
             skin: float) -> tuple[jax.Array, jax.Array]:
@@ -242,19 +265,15 @@ def measure(pos, half, active, movable, max_hops, *, spec: broadphase.GridSpec |
   per body and direction, per world (`measure_table`), for a single world or a batch
   (leading axis); dense pairs, or the grid with `spec`. Jitted once per shape and
   static arguments."""
-
-  def one(pos, half, active, movable):
-    if spec is None:
-      cand = broadphase.dense(active)
-    else:
-      cand, _ = broadphase.grid(pos, half, active, movable, spec, skin)
-    return measure_table(pos, half, movable, cand, skin=skin, max_hops=max_hops)
-
-  return one(pos, half, active, movable) if pos.ndim == 2 else jax.vmap(one)(pos, half, active, movable)
+  single = pos.ndim == 2
+  pos, half, active, movable = _minor(pos, half, active, movable)
+  cand = _candidates(pos, half, active, movable, spec, skin)
+  return _per_world(single, *measure_table(pos, half, movable, cand, skin=skin, max_hops=max_hops))
 
 
 def measure_table(pos: jax.Array, half: jax.Array, movable: jax.Array,
-                  cand: geometry.Candidates, *, skin: float, max_hops: int | jax.Array) -> tuple[jax.Array, jax.Array]:
+                  cand: core_pairs.Candidates, *, skin: float,
+                  max_hops: int | jax.Array) -> tuple[jax.Array, jax.Array]:
   """What a scene needs now: the links in its longest chain of touching or
   overlapping bodies (a wall at the end counts as a link, along any direction, up
   to `max_hops`) and the most links any movable body has in one direction. Used on
@@ -262,29 +281,31 @@ def measure_table(pos: jax.Array, half: jax.Array, movable: jax.Array,
   `while_loop` that stops when nothing changes).
 
   Args:
-    pos, half: `[n, 2]`.
-    movable: `[n]` bool; immovable bodies end chains.
-    cand: candidate table.
+    pos, half: `[2, n, B]` (the core's batch-minor layout).
+    movable: `[n, B]` bool; immovable bodies end chains.
+    cand: candidate table, `[W, n, B]`.
     skin: static.
     max_hops: int, may be traced (only the loop condition reads it).
 
   Returns:
-    `(longest_chain, most_links)`, int32 scalars.
+    `(longest_chain, most_links)`, int32 `[B]` each.
   """
-  c = geometry.contacts(pos, half, cand, skin)
-  front = geometry.by_direction(c, rows=movable)  # [4, n, m]
-  carries = cand.gather(movable[None].astype(jnp.int32)) > 0  # [1, n, m]: j passes pushes on.
+  code = core_contacts.contacts(pos, half, cand, skin).code
+  code = jnp.where(movable[None], code, NUM_DIRECTIONS)
+  front = code[None] == jnp.arange(NUM_DIRECTIONS, dtype=code.dtype)[:, None, None, None]
+  carries = cand.gather(movable)[None]  # [1, W, n, B]: j passes pushes on.
 
   def hop(state):
     length, _, k = state
-    ahead = jnp.where(carries, cand.gather(length), 0)
-    new = jnp.max(jnp.where(front, 1 + ahead, 0), axis=-1, initial=0)
+    ahead = jnp.where(carries, cand.gather(length), 0)  # [4, W, n, B]
+    new = jnp.max(jnp.where(front, 1 + ahead, 0), axis=1, initial=0)
     return new, jnp.any(new != length), k + 1
 
-  length = jnp.zeros(front.shape[:2], jnp.int32)
+  length = jnp.zeros((NUM_DIRECTIONS,) + movable.shape, jnp.int32)
   length, _, _ = lax.while_loop(lambda s: s[1] & (s[2] < jnp.int32(max_hops)), hop,
                                 (length, jnp.array(True), jnp.array(0, jnp.int32)))
-  return jnp.max(length, initial=0), jnp.max(jnp.sum(front, axis=-1, dtype=jnp.int32), initial=0)
+  most = jnp.max(jnp.sum(front, axis=1, dtype=jnp.int32), axis=(0, 1), initial=0)
+  return jnp.max(length, axis=(0, 1), initial=0), most
 
 
 def neighbor_sizing(world, config, gravity=0.0, overrides=None) -> dict:
@@ -356,20 +377,16 @@ def neighbor_sizing(world, config, gravity=0.0, overrides=None) -> dict:
 def measure_neighbors(pos, half, active, movable, reach, *, spec: broadphase.GridSpec | None,
                       skin: float) -> tuple[jax.Array, jax.Array]:
   """Per world: the most partners any movable body has within the gap `reach` (traced;
-  both axes, as `broadphase.neighbors` counts them) and the deepest overlap (the
-  smaller axis) between a movable body and any other. Dense pairs, or the grid with
-  `spec` (built with `skin`); a single world or a batch."""
-
-  def one(pos, half, active, movable):
-    if spec is None:
-      cand = broadphase.dense(active)
-    else:
-      cand, _ = broadphase.grid(pos, half, active, movable, spec, skin)
-    rows = cand.mask & (active & movable)[:, None]
-    gaps = [jnp.abs(cand.gather(pos[:, k]) - pos[:, k][:, None])
-            - (half[:, k][:, None] + cand.gather(half[:, k])) for k in (0, 1)]
-    near = rows & (gaps[0] <= reach) & (gaps[1] <= reach)
-    depth = jnp.where(rows, jnp.maximum(-jnp.maximum(gaps[0], gaps[1]), 0.0), 0.0)
-    return jnp.max(jnp.sum(near, axis=-1), initial=0), jnp.max(depth, initial=0.0)
-
-  return one(pos, half, active, movable) if pos.ndim == 2 else jax.vmap(one)(pos, half, active, movable)
+  both axes, as the neighbour table counts them) and the deepest overlap (the smaller
+  axis) between a movable body and any other. Dense pairs, or the grid with `spec`
+  (built with `skin`); a single world or a batch."""
+  single = pos.ndim == 2
+  pos, half, active, movable = _minor(pos, half, active, movable)
+  cand = _candidates(pos, half, active, movable, spec, skin)
+  rows = cand.mask & (active & movable)[None]
+  gaps = [jnp.abs(cand.gather(pos[k]) - pos[k][None]) - (half[k][None] + cand.gather(half[k]))
+          for k in (0, 1)]
+  near = rows & (gaps[0] <= reach) & (gaps[1] <= reach)
+  depth = jnp.where(rows, jnp.maximum(-jnp.maximum(gaps[0], gaps[1]), 0.0), 0.0)
+  count = jnp.max(jnp.sum(near, axis=0), axis=0, initial=0)
+  return _per_world(single, count, jnp.max(depth, axis=(0, 1), initial=0.0))

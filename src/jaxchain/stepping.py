@@ -146,9 +146,11 @@ def batch_route(kernel: Callable) -> Callable:
   * Under `vmap`: a `custom_vmap` rule calls the kernel on the batch (leaves the vmap
     does not batch are broadcast); under nested `vmap`s the outer axes fold into one
     batch (`[A, B, ...]` -> `[A * B, ...]`).
-  * Under `jax.jvp` / `jax.grad` (a `custom_jvp`): the tangents of the plain kernel at
-    one world, which reverse mode transposes (`custom_vmap` alone does not support it).
-    Differentiating a vmapped call batches that tangent rule as JAX batches any code.
+  * Under `jax.jvp` / `jax.grad` (a `custom_jvp`: `custom_vmap` alone does not support
+    reverse mode): the tangents of the plain kernel at one world, which reverse mode
+    transposes; differentiating a vmapped call batches that rule as JAX batches any
+    code. (The kernel at one world has no `lax.cond` over its batch, whose batching
+    rule would put a `stop_gradient` on those tangents.)
   * Sharded batches: the kernel runs in `sharding.in_auto_axes` (its gathers then stay
     within each device's block of worlds: `core.layout.lanes_split`).
   """
@@ -175,14 +177,15 @@ def batch_route(kernel: Callable) -> Callable:
     out = batched(_broadcast(axis_size, in_batched[0], args))
     return out, _all_batched(out)
 
+  plain = lambda a: _drop_axis(kernel(*_add_axis(a)))
+
   @jax.custom_jvp
   def one(args):
     return single(args)
 
   @one.defjvp
   def one_jvp(primals, tangents):
-    return jax.jvp(lambda a: _drop_axis(kernel(*_add_axis(a))), primals, tangents)
-
+    return jax.jvp(plain, primals, tangents)
   return lambda *args: one(args)
 
 

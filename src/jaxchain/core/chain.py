@@ -209,7 +209,7 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   zero = jnp.zeros((4,) + mass.shape, mass.dtype)
   disps, pushed_on = repeat(push_hop, (zero,) * len(shares), depth + 1, converge, check=True)
   push_short = any_world(jnp.stack([jnp.any(p, axis=0) for p in pushed_on]))
-  exhausted = lax.stop_gradient(backing_short | push_short)
+  exhausted = backing_short | push_short  # Bools: no gradient to stop.
   disp = jnp.where(movable[None], jnp.maximum(disps[0], crush_push), 0.0)
   net = jnp.stack([disp[0] - disp[1], disp[2] - disp[3]])
   if vel is None:
@@ -251,7 +251,7 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   scale = energy_scale(vel, change, lam, f, mass, immovable, m_dir)
   return Pass(net, exhausted, crushed, scale[None, None] * change,
               scale[None, None, None] * lam, jammed, shared, sticking,
-              lax.stop_gradient(scale < 1), unit_short)
+              scale < 1, unit_short)
 
 
 def energy_scale(vel: jax.Array, change: jax.Array, impulse: jax.Array, f: Links,

@@ -31,23 +31,32 @@ ONE_WAY_MARGIN = 0.05
 ONE_WAY_RISE = 1e-6
 
 
-def admit(cand: Candidates, bodies: Bodies, *, layers: bool, sensors: bool) -> Candidates:
-  """`cand` without the pairs that collision layers keep apart or that hold a sensor.
-
-  Bodies i and j interact only when `category[i] & mask[j]` and `category[j] &
-  mask[i]` are both nonzero (Box2D's filter rule); a sensor interacts with nothing
-  (it only senses). With both switches off it returns `cand`.
-  """
+def admits(category_i, mask_i, sensor_i, category_j, mask_j, sensor_j, *, layers: bool = True,
+           sensors: bool = True):
+  """Whether bodies i and j may interact (elementwise, any shapes that broadcast):
+  `category[i] & mask[j]` and `category[j] & mask[i]` both nonzero (Box2D's filter rule,
+  with `layers`), and neither a sensor (with `sensors`: a sensor only senses). None
+  when both switches are off (everything interacts)."""
   ok = None
   if layers:
-    zero = jnp.zeros((), bodies.category.dtype)
-    cat_j, mask_j = cand.gather(bodies.category), cand.gather(bodies.mask)
-    ok = (((bodies.category[None] & mask_j) != zero)
-          & ((cat_j & bodies.mask[None]) != zero))
+    zero = jnp.zeros((), category_i.dtype)
+    ok = ((category_i & mask_j) != zero) & ((category_j & mask_i) != zero)
   if sensors:
-    solid = ~bodies.sensor[None] & ~cand.gather(bodies.sensor)
+    solid = ~sensor_i & ~sensor_j
     ok = solid if ok is None else ok & solid
-  return cand if ok is None else dataclasses.replace(cand, mask=cand.mask & ok)
+  return ok
+
+
+def admit(cand: Candidates, bodies: Bodies, *, layers: bool, sensors: bool) -> Candidates:
+  """`cand` without the pairs that collision layers keep apart or that hold a sensor
+  (`admits`); with both switches off, `cand` itself."""
+  if not (layers or sensors):
+    return cand
+  g = cand.gather
+  ok = admits(bodies.category[None], bodies.mask[None], bodies.sensor[None],
+              g(bodies.category), g(bodies.mask), g(bodies.sensor), layers=layers,
+              sensors=sensors)
+  return dataclasses.replace(cand, mask=cand.mask & ok)
 
 
 @jax.tree_util.register_dataclass
@@ -261,7 +270,7 @@ def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Ar
   the other axis. A player whose edge is on the seam between two floor tiles rests on
   the next tile, and one pressed against a wall of tiles with its bottom on a seam
   slides past the next tile down. Other pairs keep `use_y`. Corner contacts are rare:
-  a batch without one skips the rule (`lax.cond`).
+  a batch (`B > 1`) without one skips the rule (`lax.cond`).
   """
   corner = (jnp.abs(ox0) <= skin) & (jnp.abs(oy0) <= skin)
 
@@ -278,6 +287,8 @@ def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Ar
     beside_y = pick(own, 0, 1, sx, sy) | pick(other, 2, 3, ~sy, ~sx)
     return jnp.where(corner & (beside_x != beside_y), beside_x, use_y)
 
+  if use_y.shape[-1] == 1:  # One world: nothing to skip for the rest of a batch.
+    return rule(use_y)
   return lax.cond(jnp.any(corner & cand.mask), rule, lambda u: u, use_y)
 
 

@@ -11,12 +11,9 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxchain import status
+from jaxchain.core.friction import STICK
 from jaxchain.core.layout import Bodies, any_world, scatter_max
 from jaxchain.core.pairs import Candidates
-
-# Below this speed (units/s) bodies count as at rest relative to each other
-# (`friction.STICK`); `motion_lost` reads it.
-STICK = 1e-3
 
 
 def bit(on: jax.Array, code: int) -> jax.Array:

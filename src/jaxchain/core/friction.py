@@ -114,7 +114,7 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   exhausted = jnp.zeros(scale.shape, bool)
   if short is not None:
     exhausted = any_world(rubbing & (opposite(short)[None] | f.front(short)))
-  return vel + scale[None, None] * change, lax.stop_gradient(scale < 1), lax.stop_gradient(exhausted)
+  return vel + scale[None, None] * change, scale < 1, exhausted
 
 
 def holding(f: Links, total: jax.Array, shared: jax.Array, count: jax.Array) -> jax.Array:

@@ -19,8 +19,10 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 from jax import lax
+from jax.custom_batching import custom_vmap
 
-NUM_DIRECTIONS = 4  # 0: +x, 1: -x, 2: +y, 3: -y; `d ^ 1` is the opposite.
+DIRECTIONS = ("+x", "-x", "+y", "-y")  # Direction d; `d ^ 1` is the opposite.
+NUM_DIRECTIONS = 4
 
 
 @jax.tree_util.register_dataclass
@@ -213,10 +215,7 @@ def safe_sqrt(x: jax.Array) -> jax.Array:
   return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1.0)), 0.0)
 
 
-def materialise(x: jax.Array) -> jax.Array:
-  """`x`, computed into memory once. XLA fuses cheap elementwise producers into each
-  consumer (recomputing them there) and XLA:CPU drops `optimization_barrier`; a
-  dynamic-update-slice at an offset it cannot prove is 0 it keeps, as one copy."""
+def _materialise(x: jax.Array) -> jax.Array:
   if x.size == 0:
     return x
   # An offset XLA cannot prove is 0: whether the first element, as a float, is NaN (for
@@ -224,6 +223,31 @@ def materialise(x: jax.Array) -> jax.Array:
   first = x.reshape(-1)[0].astype(jnp.float32)
   zero = jnp.zeros((), jnp.int32) * jnp.isnan(first).astype(jnp.int32)
   return lax.dynamic_update_slice(jnp.zeros_like(x), x, (zero,) * x.ndim)
+
+
+_materialise_batched = custom_vmap(_materialise)
+
+
+@_materialise_batched.def_vmap
+def _materialise_rule(axis_size, in_batched, x):
+  del axis_size
+  return _materialise_batched(x), in_batched[0]
+
+
+@jax.custom_jvp
+def materialise(x: jax.Array) -> jax.Array:
+  """`x`, computed into memory once. XLA fuses cheap elementwise producers into each
+  consumer (recomputing them there) and XLA:CPU drops `optimization_barrier`; a
+  dynamic-update-slice at an offset it cannot prove is 0 it keeps, as one copy. Under
+  `vmap` the copy covers the batched array whole (no per-world offsets: a batched
+  update would be a scatter), and its tangent is the tangent itself (a copy changes no
+  derivative, and a tangent needs no copy)."""
+  return _materialise_batched(x)
+
+
+@materialise.defjvp
+def _materialise_jvp(primals, tangents):
+  return materialise(primals[0]), tangents[0]
 
 
 def any_world(x: jax.Array) -> jax.Array:

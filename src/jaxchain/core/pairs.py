@@ -75,18 +75,18 @@ def dense(active: jax.Array) -> Candidates:
   return Candidates.of(None, active[:, None, :] & active[None, :, :] & ~eye)
 
 
-def grid(pos: jax.Array, bodies: Bodies, spec: host_broadphase.GridSpec,
-         skin: float) -> tuple[Candidates, jax.Array]:
-  """The grid's candidate rows at `pos` (`[2, n, B]`): built per world by
-  `jaxchain.broadphase.grid` (a sort and a scatter per world, which the batch-minor
-  layout cannot speed up) and handed on transposed once, `[m, n, B]`, with the
-  grid's status bits `[B]`."""
+def grid(pos: jax.Array, half: jax.Array, active: jax.Array, movable: jax.Array,
+         spec: host_broadphase.GridSpec, skin: float) -> tuple[Candidates, jax.Array]:
+  """The grid's candidate rows at `pos` (`[2, n, B]`; `half` too, `active` and
+  `movable` `[n, B]`): built per world by `jaxchain.broadphase.grid` (a sort and a
+  scatter per world, which the batch-minor layout cannot speed up) and handed on
+  transposed once, `[m, n, B]`, with the grid's status bits `[B]`."""
   major = lambda x: jnp.moveaxis(x, -1, 0)  # [..., n, B] -> [B, ..., n]
   xy = lambda x: jnp.moveaxis(x, (0, 2), (2, 0))  # [2, n, B] -> [B, n, 2]
-  cand, code = jax.vmap(lambda p, h, a, m: host_broadphase.grid(p, h, a, m, spec, skin))(
-      xy(pos), xy(bodies.half), major(bodies.active), major(bodies.movable))
+  idx, mask, code = jax.vmap(lambda p, h, a, m: host_broadphase.grid(p, h, a, m, spec, skin))(
+      xy(pos), xy(half), major(active), major(movable))
   to_minor = lambda x: jnp.transpose(x, (2, 1, 0))  # [B, n, m] -> [m, n, B]
-  return Candidates.of(to_minor(cand.idx), to_minor(cand.mask)), code
+  return Candidates.of(to_minor(idx), to_minor(mask)), code
 
 
 def coarse(pos: jax.Array, bodies: Bodies, config, skin: float | None = None
@@ -96,7 +96,7 @@ def coarse(pos: jax.Array, bodies: Bodies, config, skin: float | None = None
   skin = config.skin if skin is None else skin
   n, B = bodies.shape
   if config.uses_grid(n) and n > 0:
-    return grid(pos, bodies, config.grid, skin)
+    return grid(pos, bodies.half, bodies.active, bodies.movable, config.grid, skin)
   return dense(bodies.active), jnp.zeros((B,), jnp.int32)
 
 

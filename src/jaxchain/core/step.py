@@ -72,10 +72,11 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
     ow = one_way if one_way is None or v is None else dataclasses.replace(one_way, vel=v)
     c = contacts.contacts(p, bodies.half, cand, config.skin, start, ow, surface)
     f, overflow = contacts.link_table(c, cand, config.links, rows=movable)
-    if f.slots > 1 and f.idx is not None:
+    if f.slots > 1 and f.idx is not None and B > 1:
       # Link slots that cost what the batch needs: a settled room has at most one link
       # per body and direction, and a batch in which no body has a second one runs the
-      # chain on one slot (the same answer, half the hops' gathers).
+      # chain on one slot (the same answer, half the hops' gathers). One world (`B = 1`,
+      # also the tangent rule of a vmapped call) runs its table as it is: half the code.
       new_p, v, scaled, exhausted, hit = lax.cond(
           jnp.any(f.mask[1:]), lambda: resolve(f, p, v), lambda: resolve(f.first(1), p, v))
     else:
