@@ -32,7 +32,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxchain.core.contacts import Links
-from jaxchain.core.layout import any_world, along, opposite, safe_divide, world_sum
+from jaxchain.core.layout import any_world, along, fold, opposite, safe_divide, world_sum
 
 # Jacobi refinement steps on the contact impulses after the chain's estimate.
 REFINE = 4
@@ -63,7 +63,7 @@ def repeat(hop, init, times: int, converge: bool = False, check: bool = False):
   def step(state):
     k, _, x, _ = state
     y = hop(x)
-    changed = jnp.any(jnp.stack([jnp.any(c) for c in jax.tree_util.tree_leaves(changes(x, y))]))
+    changed = jnp.any(jnp.stack([jnp.any(any_world(c)) for c in jax.tree_util.tree_leaves(changes(x, y))]))
     return k + 1, x, y, changed
 
   last = times + 1 if check else times
@@ -124,7 +124,7 @@ def backing(f: Links, mass: jax.Array, immovable: jax.Array, depth: int, *,
     unit, leans = carry
     unit = mass[None] + jnp.sum(jnp.where(f.mask, f.front(unit), 0.0), axis=0)
     if track_immovable:
-      leans = immovable[None] | jnp.any(f.mask & f.front(leans), axis=0)
+      leans = immovable[None] | fold("any", f.mask & f.front(leans))
     return unit, leans
 
   shape = (4,) + mass.shape
@@ -188,7 +188,7 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   weight = safe_divide(mass_j, mass_i + mass_j, default=0.5)
   weight = jnp.where(leans_j, 1.0, weight)
   weight = jnp.where(leans_i, 0.0, weight)
-  crushed = movable & jnp.any(jammed & (depth_now > 0), axis=(0, 1))
+  crushed = movable & fold("any", jammed & (depth_now > 0), 2)
   # How far i is pushed along e by this contact beyond j's own push. Across a gap i moves
   # only once j has closed half of it. A jammed contact moves its two bodies only (half
   # its depth each), not their units.
@@ -208,7 +208,7 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
 
   zero = jnp.zeros((4,) + mass.shape, mass.dtype)
   disps, pushed_on = repeat(push_hop, (zero,) * len(shares), depth + 1, converge, check=True)
-  push_short = any_world(jnp.stack([jnp.any(p, axis=0) for p in pushed_on]))
+  push_short = any_world(jnp.stack(pushed_on))
   exhausted = backing_short | push_short  # Bools: no gradient to stop.
   disp = jnp.where(movable[None], jnp.maximum(disps[0], crush_push), 0.0)
   net = jnp.stack([disp[0] - disp[1], disp[2] - disp[3]])
@@ -319,7 +319,7 @@ def link_impulses(change: jax.Array, f: Links, mass: jax.Array, leans: jax.Array
   leans_j, leans_i = f.front(leans), opposite(leans)[None]
   estimate = jnp.where(leans_j, r_i, jnp.where(leans_i, r_j, jnp.minimum(r_j, r_i)))
   agree = leans_j | leans_i | (jnp.abs(r_j - r_i) <= 1e-5 * jnp.maximum(jnp.abs(r_j), jnp.abs(r_i)))
-  tree = jnp.all(agree | ~f.mask, axis=(0, 1))
+  tree = fold("all", agree | ~f.mask, 2)
   return jnp.where(f.mask & ~jammed, jnp.maximum(estimate, 0.0), 0.0), units, tree
 
 
@@ -339,6 +339,6 @@ def crush(vel: jax.Array, f: Links, jammed: jax.Array, movable: jax.Array) -> ja
   count = jnp.sum(f.mask, axis=0).astype(vel.dtype)
   mean = jnp.stack([safe_divide(partner[0] + partner[1], count[0] + count[1]),
                     safe_divide(partner[2] + partner[3], count[2] + count[3])])
-  hit = jnp.any(jammed, axis=0)
+  hit = fold("any", jammed)
   hit = jnp.stack([hit[0] | hit[1], hit[2] | hit[3]]) & movable[None]
   return jnp.where(hit, mean, vel)

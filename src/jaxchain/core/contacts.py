@@ -17,8 +17,8 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxchain.core.layout import (NUM_DIRECTIONS, Bodies, any_world, lane_index, materialise,
-                                  opposite, shift, take)
+from jaxchain.core.layout import (NUM_DIRECTIONS, Bodies, any_world, fold, lane_index,
+                                  materialise, opposite, shift, take)
 from jaxchain.core.pairs import Candidates, pack, peel
 
 # A body came down onto a one-way body when, at the start of the step, its bottom was
@@ -253,7 +253,7 @@ def surface_cover(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: ja
   face_y, corner_y = axis_tests(dy0, col(1), partner(1))
   faces = [(face_x[0], corner_y), (face_x[1], corner_y), (face_y[0], corner_x),
            (face_y[1], corner_x)]
-  return jnp.stack([jnp.stack([jnp.any(ok & f & c, axis=0) for c in corners])
+  return jnp.stack([jnp.stack([fold("any", ok & f & c) for c in corners])
                     for f, corners in faces])
 
 
@@ -289,7 +289,7 @@ def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Ar
 
   if use_y.shape[-1] == 1:  # One world: nothing to skip for the rest of a batch.
     return rule(use_y)
-  return lax.cond(jnp.any(corner & cand.mask), rule, lambda u: u, use_y)
+  return lax.cond(jnp.any(any_world(corner & cand.mask)), rule, lambda u: u, use_y)
 
 
 @jax.tree_util.register_dataclass
@@ -406,4 +406,4 @@ def link_table(c: Contacts, cand: Candidates, limit: int | None,
 
 def touching(links: Links) -> jax.Array:
   """`[4, n, B]` bool: body i has a link in direction d."""
-  return jnp.any(links.mask, axis=0)
+  return fold("any", links.mask)

@@ -12,7 +12,7 @@ from jax import lax
 
 from jaxchain import status
 from jaxchain.core.friction import STICK
-from jaxchain.core.layout import Bodies, any_world, scatter_max
+from jaxchain.core.layout import Bodies, any_world, fold, scatter_max
 from jaxchain.core.pairs import Candidates
 
 
@@ -45,7 +45,7 @@ def sensed(bodies: Bodies, pos: jax.Array, cand: Candidates,
   seen = col(bodies.movable & ~bodies.sensor) & g(bodies.sensor & bodies.active)
   seen = seen & cand.mask & hit & ((col(bodies.category) & g(bodies.mask)) != zero)
   if cand.idx is None:  # Dense: slot k holds body k.
-    return jnp.any(seen, axis=1)
+    return fold("any", jnp.swapaxes(seen, 0, 1))
   return scatter_max(n, cand.flat, seen.astype(jnp.int32)) > 0
 
 

@@ -17,7 +17,7 @@ from jax import lax
 
 from jaxchain.core import chain
 from jaxchain.core.contacts import Links
-from jaxchain.core.layout import any_world, opposite, safe_divide, safe_sqrt
+from jaxchain.core.layout import any_world, fold, opposite, safe_divide, safe_sqrt
 
 # Linked bodies whose tangential velocities differ by at most this (units per second)
 # move together for friction: they are one unit, and friction on the bottom one stops
@@ -70,7 +70,7 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   mu_pair = safe_sqrt(coefficient[None, None] * f.bodies(coefficient))
   budget = jnp.where(f.mask, mu_pair * normal, 0.0)
   rubbing = (budget > 0) & (jnp.abs(sliding) > SLIP)
-  movable = jnp.any(shared > 0, axis=0)[None]
+  movable = fold("any", shared > 0)[None]
   k = jnp.broadcast_to(jnp.sum(rubbing, axis=(0, 1)).astype(dtype), tangent.shape)
 
   def solve(shared, sticking):

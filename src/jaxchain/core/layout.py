@@ -15,6 +15,7 @@ neighbouring worlds' values side by side. A single world is `B = 1`.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import jax
 import jax.numpy as jnp
@@ -250,9 +251,36 @@ def _materialise_jvp(primals, tangents):
   return materialise(primals[0]), tangents[0]
 
 
+_FOLDS = {"sum": jnp.add, "max": jnp.maximum, "min": jnp.minimum, "any": jnp.logical_or,
+          "all": jnp.logical_and}
+
+
+def fold(kind: str, x: jax.Array, axes: int = 1) -> jax.Array:
+  """`x` reduced over its first `axes` axes by `kind` ("sum", "max", "min", "any" or
+  "all"), as a pairwise tree of elementwise operations on its slabs.
+
+  XLA:CPU runs a reduction of bools over leading axes that keeps the minor (batch) axis
+  as a strided scalar loop: measured on `[3, 4, 20, 1024]`, `jnp.any` over three axes
+  took 340 us; the same fold as elementwise operations, which XLA fuses into one loop
+  vectorised over the batch, 27 us. The core folds its bools this way (`any_world`,
+  the link and contact flags); its float sums and maxima stay XLA reductions (as
+  elementwise trees XLA fused them into their producers and recomputed them there).
+  """
+  rows = math.prod(x.shape[:axes])
+  if rows == 0:  # Nothing to fold (an empty world): the reduction's identity.
+    return getattr(jnp, kind)(x, axis=tuple(range(axes)))
+  x = x.reshape((rows,) + x.shape[axes:])
+  op = _FOLDS[kind]
+  parts = [x[k] for k in range(rows)]
+  while len(parts) > 1:
+    pairs = [op(parts[k], parts[k + 1]) for k in range(0, len(parts) - 1, 2)]
+    parts = pairs + parts[len(pairs) * 2:]
+  return parts[0]
+
+
 def any_world(x: jax.Array) -> jax.Array:
-  """`[..., B]` bool -> `[B]`: any over every axis but the last."""
-  return jnp.any(x, axis=tuple(range(x.ndim - 1)))
+  """`[..., B]` bool -> `[B]`: any over every axis but the last (`fold`)."""
+  return fold("any", x, x.ndim - 1) if x.ndim > 1 else x
 
 
 def world_sum(x: jax.Array, y: jax.Array) -> jax.Array:

@@ -22,7 +22,7 @@ from jax import lax
 
 from jaxchain import broadphase as host_broadphase
 from jaxchain import status
-from jaxchain.core.layout import Bodies, any_world, lane_index, shift, take
+from jaxchain.core.layout import Bodies, any_world, fold, lane_index, shift, take
 
 
 @jax.tree_util.register_dataclass
@@ -152,7 +152,7 @@ def peel(words: jax.Array, limit: int) -> tuple[jax.Array, jax.Array, jax.Array]
     return x, (jnp.where(valid, first, 0), valid)
 
   words, (slot, valid) = lax.scan(step, words, None, length=limit)
-  return slot, valid, jnp.any(words != 0, axis=0)
+  return slot, valid, fold("any", words != 0)
 
 
 @jax.tree_util.register_dataclass
@@ -204,7 +204,7 @@ def neighbors(centre: jax.Array, half: jax.Array, rows: jax.Array, coarse: Candi
   else:
     body = jnp.arange(n, dtype=jnp.int32)[None, :, None]
     idx = take(coarse.idx, lane_index(slot * n + body))
-  overflow = jnp.any(rest, axis=0)
+  overflow = any_world(rest)
   return Candidates.of(idx, valid), jnp.where(overflow, status.NEIGHBOR_OVERFLOW, 0).astype(jnp.int32)
 
 

@@ -20,7 +20,7 @@ from jax import lax
 
 from jaxchain import status
 from jaxchain.core import chain, contacts, flags, friction, pairs
-from jaxchain.core.layout import NUM_DIRECTIONS, Bodies, State
+from jaxchain.core.layout import NUM_DIRECTIONS, Bodies, State, any_world
 
 
 def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = None,
@@ -78,7 +78,8 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
       # chain on one slot (the same answer, half the hops' gathers). One world (`B = 1`,
       # also the tangent rule of a vmapped call) runs its table as it is: half the code.
       new_p, v, scaled, exhausted, hit = lax.cond(
-          jnp.any(f.mask[1:]), lambda: resolve(f, p, v), lambda: resolve(f.first(1), p, v))
+          jnp.any(any_world(f.mask[1:])), lambda: resolve(f, p, v),
+          lambda: resolve(f.first(1), p, v))
     else:
       new_p, v, scaled, exhausted, hit = resolve(f, p, v)
     code = (code | found | flags.bit(overflow, status.LINK_OVERFLOW)
@@ -87,7 +88,10 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
 
   init = (pos, vel, jnp.zeros((B,), jnp.int32), jnp.zeros((B,), bool), jnp.zeros((n, B), bool),
           jnp.zeros((NUM_DIRECTIONS, n, B), bool))
-  p, v, code, exhausted, crushed, touching = lax.fori_loop(0, config.iterations, one_pass, init)
+  if config.iterations == 1:  # No loop: its carries would be copied in and out.
+    p, v, code, exhausted, crushed, touching = one_pass(0, init)
+  else:
+    p, v, code, exhausted, crushed, touching = lax.fori_loop(0, config.iterations, one_pass, init)
   return p, v, code | flags.bit(exhausted, status.DEPTH_EXHAUSTED), crushed, touching
 
 
@@ -104,7 +108,7 @@ def sensors(bodies: Bodies, pos: jax.Array, config, table: pairs.Neighbors | Non
 
 
 def crushed_bit(crushed: jax.Array) -> jax.Array:
-  return flags.bit(jnp.any(crushed, axis=0), status.CRUSHED)
+  return flags.bit(any_world(crushed), status.CRUSHED)
 
 
 def substep(state: State, bodies: Bodies, config, sub_dt: float,
