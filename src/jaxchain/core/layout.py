@@ -271,11 +271,13 @@ def fold(kind: str, x: jax.Array, axes: int = 1) -> jax.Array:
     return getattr(jnp, kind)(x, axis=tuple(range(axes)))
   x = x.reshape((rows,) + x.shape[axes:])
   op = _FOLDS[kind]
-  parts = [x[k] for k in range(rows)]
-  while len(parts) > 1:
-    pairs = [op(parts[k], parts[k + 1]) for k in range(0, len(parts) - 1, 2)]
-    parts = pairs + parts[len(pairs) * 2:]
-  return parts[0]
+  while x.shape[0] > 1:  # Halve: log2(rows) elementwise operations, not one per row.
+    half = x.shape[0] // 2
+    folded = op(x[:half], x[half:2 * half])
+    if x.shape[0] % 2:
+      folded = jnp.concatenate([op(folded[:1], x[2 * half:]), folded[1:]])
+    x = folded
+  return x[0]
 
 
 def any_world(x: jax.Array) -> jax.Array:
