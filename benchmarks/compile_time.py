@@ -5,10 +5,11 @@ compile so that the first row does not pay for XLA's start-up):
 
 - `demo`: the program `jaxchain demo` compiles (`jaxchain.cli.demo`): the platformer
   scene of `scenes.platformer` in B = 1024 worlds (seed 0, friction 0.3,
-  `Config.for_world(worlds, iterations=1, converge=True)`), `jax.jit(jax.vmap(lambda w,
-  u: rollout(w, config, 50, u)[0]))`: one step inside a 50-step `lax.scan` (the vmap
-  reaches the batch-minor core; `jaxchain demo` itself now scans `make_step` over the
-  batch with a masked tail, the same step).
+  `Config.for_world(worlds, iterations=1, converge=True)`), `cli.chunk_program` of
+  `jax.vmap(make_step(config))`: the vmapped step (which reaches the batch-minor core)
+  in a 50-step `lax.scan` whose steps past a bound are masked. An older jaxchain
+  without `chunk_program` compiles `jax.jit(jax.vmap(lambda w, u: rollout(w, config,
+  50, u)[0]))`, the program its demo compiled.
 - `env`: `jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))` of `jc.env.make(task)`
   for push_box and reach_flag at B = 1, 64, 1024, 4096 (auto-reset included).
 
@@ -86,7 +87,16 @@ def demo_program(batch: int, chunk: int):
   controls[:, layouts[0].player, 0] = 20.0
   one = lambda w, u: jc.rollout(w, config, chunk, u)[0]
   args = (worlds, jnp.asarray(controls))
-  return jax.vmap(one), args, one, jax.tree.map(lambda x: x[0], args), None
+  one_args = jax.tree.map(lambda x: x[0], args)
+  from jaxchain import cli
+  chunk_program = getattr(cli, "chunk_program", None)
+  if chunk_program is None:  # An older jaxchain: the demo compiled a vmapped rollout.
+    return jax.vmap(one), args, one, one_args, None
+  # As `cli.demo`: the vmapped step scanned over the chunk, steps past `stop` masked.
+  step = jax.vmap(jc.make_step(config))
+  run = chunk_program(lambda w, t, u: step(w, u), chunk)
+  fn = lambda w, u, start, stop: run(w, start, stop, u)[0]
+  return fn, args + (np.int32(0), np.int32(chunk)), one, one_args, None
 
 
 def env_program(task: str, batch: int):
