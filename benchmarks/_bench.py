@@ -9,6 +9,7 @@ import os
 import pathlib
 import platform
 import statistics
+import subprocess
 import time
 
 import jax
@@ -16,6 +17,7 @@ import numpy as np
 
 # Where the scripts write their tables and plots unless given `--out`.
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+ROOT = RESULTS.parents[1]  # The checkout.
 
 
 def add_common_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -97,3 +99,14 @@ def loglog(path, series, *, xlabel: str, ylabel: str, title: str, xbase: int = 1
   fig.tight_layout()
   fig.savefig(path, dpi=120)
   plt.close(fig)
+
+
+def export_src(rev: str, into: pathlib.Path) -> pathlib.Path:
+  """`git archive rev src` of this checkout into `into/rev`; returns its `src` folder
+  (an earlier commit's jaxchain, to run beside the working tree's)."""
+  dest = into / rev
+  dest.mkdir(parents=True)
+  archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "src"], check=True,
+                           capture_output=True).stdout
+  subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+  return dest / "src"

@@ -28,22 +28,11 @@ import time
 
 from tqdm import tqdm
 
-from _bench import add_common_args, machine, out_dir
+from _bench import ROOT, add_common_args, export_src, machine, out_dir
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
 # `--smoke`: the cheapest demo to compile (no chain hops, no friction, no converging loops).
 SMOKE_DEMO = ["--depth", "0", "--no-converge", "--friction", "0"]
 FIGURES = {"compile": r"compile time\s+([\d.]+) s", "world_steps": r"world-steps/s\s+([\d.e+]+)"}
-
-
-def export(rev: str, into: pathlib.Path) -> pathlib.Path:
-  """`git archive rev` into `into/rev`; returns its `src` folder."""
-  dest = into / rev
-  dest.mkdir(parents=True)
-  archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "src"], check=True,
-                           capture_output=True).stdout
-  subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
-  return dest / "src"
 
 
 def run_demo(src: pathlib.Path, args: list[str]) -> dict:
@@ -81,7 +70,7 @@ def main():
     if not args.smoke:
       trees["working tree, --no-converge"] = (ROOT / "src", demo + ["--no-converge"])
     for rev in args.against:
-      trees[rev] = (export(rev, pathlib.Path(tmp)), demo)
+      trees[rev] = (export_src(rev, pathlib.Path(tmp)), demo)
     runs = {name: [] for name in trees}
     plan = [(r, name) for r in range(args.rounds) for name in trees]
     for _, name in tqdm(plan, desc="demo runs", unit="run"):

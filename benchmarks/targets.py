@@ -32,9 +32,8 @@ import subprocess
 import sys
 import tempfile
 
-from _bench import add_common_args, machine, out_dir
+from _bench import ROOT, add_common_args, export_src, machine, out_dir
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 CHILD = r"""
 import json, sys, time
@@ -93,16 +92,6 @@ print("RESULT " + json.dumps(out))
 """
 
 
-def export(rev: str, into: pathlib.Path) -> pathlib.Path:
-  """`git archive rev src` into `into/rev`; returns its `src` folder."""
-  dest = into / rev
-  dest.mkdir(parents=True)
-  archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "src"], check=True,
-                           capture_output=True).stdout
-  subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
-  return dest / "src"
-
-
 def measure(src: pathlib.Path, sizes: list[int]) -> dict:
   env = dict(os.environ, PYTHONPATH=str(src))
   done = subprocess.run([sys.executable, "-c", CHILD, *map(str, sizes)], env=env,
@@ -125,7 +114,7 @@ def main() -> None:
   trees = {"HEAD": ROOT / "src"}
   with tempfile.TemporaryDirectory() as tmp:
     for rev in args.against:
-      trees[rev] = export(rev, pathlib.Path(tmp))
+      trees[rev] = export_src(rev, pathlib.Path(tmp))
     runs = {name: [] for name in trees}
     for r in range(args.rounds):
       for name, src in trees.items():
