@@ -6,8 +6,10 @@ line per test phase and per fixture set-up into `DIR/<pid>.jsonl`:
 
 - a test's set-up, call and teardown: CPU seconds of this process
   (`time.process_time`), CPU seconds of the subprocesses it waited for
-  (`RUSAGE_CHILDREN`), wall seconds, and the XLA compiles it started (the count and
-  seconds of `jax.monitoring`'s backend-compile event);
+  (`RUSAGE_CHILDREN`), wall seconds, the XLA compiles it started (the count and
+  seconds of `jax.monitoring`'s backend-compile event, which also times a program
+  loaded from the persistent compilation cache: the loads are counted apart, as
+  `cache_hits`, and not as compiles);
 - a fixture's set-up (module- and session-scoped ones are paid once, by the first test
   that asks): the same figures, by fixture name and scope.
 
@@ -27,9 +29,10 @@ import time
 import pytest
 
 BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
+CACHE_HIT = "/jax/compilation_cache/cache_hits"  # With JAX_COMPILATION_CACHE_DIR set.
 DIR = os.environ.get("JAXCHAIN_SUITE_TIMING")
 _lock = threading.Lock()
-_compiles = [0, 0.0]  # Count and seconds, this process, so far.
+_compiles = [0, 0.0, 0]  # Count and seconds, persistent-cache hits, this process, so far.
 
 
 def _listen(event, duration, **kwargs):
@@ -40,16 +43,24 @@ def _listen(event, duration, **kwargs):
       _compiles[1] += duration
 
 
+def _listen_event(event, **kwargs):
+  del kwargs
+  if event == CACHE_HIT:
+    with _lock:
+      _compiles[2] += 1
+
+
 def _now():
   child = resource.getrusage(resource.RUSAGE_CHILDREN)
   return (time.process_time(), child.ru_utime + child.ru_stime, time.perf_counter(),
-          _compiles[0], _compiles[1])
+          _compiles[0], _compiles[1], _compiles[2])
 
 
 def _delta(t0):
   t1 = _now()
   return dict(cpu=t1[0] - t0[0], child_cpu=t1[1] - t0[1], wall=t1[2] - t0[2],
-              compiles=t1[3] - t0[3], compile_s=t1[4] - t0[4])
+              compiles=(t1[3] - t0[3]) - (t1[5] - t0[5]), compile_s=t1[4] - t0[4],
+              cache_hits=t1[5] - t0[5])
 
 
 _out = None
@@ -67,6 +78,7 @@ def pytest_configure(config):
   if DIR:
     import jax
     jax.monitoring.register_event_duration_secs_listener(_listen)
+    jax.monitoring.register_event_listener(_listen_event)
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -45,12 +45,16 @@ SITECUSTOMIZE = '''
 import os, sys
 if os.environ.get("JAXCHAIN_SUITE_TEST") and os.environ.get("JAXCHAIN_SUITE_TIMING"):
   import atexit, json, time
-  _counts = [0, 0.0]
+  _counts = [0, 0.0, 0]
 
   def _listen(event, duration, **kwargs):
     if event == "/jax/core/compile/backend_compile_duration":
       _counts[0] += 1
       _counts[1] += duration
+
+  def _listen_event(event, **kwargs):
+    if event == "/jax/compilation_cache/cache_hits":
+      _counts[2] += 1
 
   class _Hook:
     def find_spec(self, name, path=None, target=None):
@@ -64,6 +68,7 @@ if os.environ.get("JAXCHAIN_SUITE_TEST") and os.environ.get("JAXCHAIN_SUITE_TIMI
       def exec_module(module):
         run(module)
         module.register_event_duration_secs_listener(_listen)
+        module.register_event_listener(_listen_event)
       spec.loader.exec_module = exec_module
       return spec
 
@@ -71,7 +76,8 @@ if os.environ.get("JAXCHAIN_SUITE_TEST") and os.environ.get("JAXCHAIN_SUITE_TIMI
 
   def _dump():
     record = dict(kind="sub", nodeid=os.environ["JAXCHAIN_SUITE_TEST"], argv=sys.argv[:3],
-                  cpu=time.process_time(), compiles=_counts[0], compile_s=_counts[1])
+                  cpu=time.process_time(), compiles=_counts[0] - _counts[2],
+                  compile_s=_counts[1], cache_hits=_counts[2])
     path = os.path.join(os.environ["JAXCHAIN_SUITE_TIMING"], f"sub-{os.getpid()}.jsonl")
     with open(path, "a") as f:
       f.write(json.dumps(record) + "\\n")
@@ -92,12 +98,21 @@ def run(pytest_args: list[str], record_dir: pathlib.Path) -> dict:
              JAX_PLATFORMS="cpu")
   argv = [sys.executable, "-m", "pytest", "-p", "_suite_plugin", "-q", "--durations=0",
           "-p", "no:cacheprovider", *pytest_args]
-  load0 = os.getloadavg()[0]
+  load0, busy0 = os.getloadavg()[0], _machine_busy()
   cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
   t0 = time.perf_counter()
-  done = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True)
+  loads = []
+  with tempfile.TemporaryFile("w+") as out_file, tempfile.TemporaryFile("w+") as err_file:
+    proc = subprocess.Popen(argv, cwd=ROOT, env=env, stdout=out_file, stderr=err_file, text=True)
+    while proc.poll() is None:  # The 1-minute load average, every 10 s while it runs.
+      loads.append(os.getloadavg()[0])
+      time.sleep(min(10.0, 0.1 * (len(loads) + 1)))
+    out_file.seek(0)
+    err_file.seek(0)
+    done = subprocess.CompletedProcess(argv, proc.returncode, out_file.read(), err_file.read())
   wall = time.perf_counter() - t0
   cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+  busy = _machine_busy() - busy0
   out = done.stdout
   summary = next((line.strip("= ") for line in reversed(out.splitlines())
                   if re.search(r"\d+ (passed|failed|error)", line)), "(no summary)")
@@ -106,7 +121,20 @@ def run(pytest_args: list[str], record_dir: pathlib.Path) -> dict:
   return dict(command="pytest " + " ".join(shlex.quote(a) for a in pytest_args), wall=wall,
               cpu=(cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime),
               returncode=done.returncode, summary=summary, load=(load0, os.getloadavg()[0]),
-              output=out)
+              load_mean=sum(loads) / max(len(loads), 1), load_max=max(loads, default=load0),
+              machine_busy=busy, output=out)
+
+
+def _machine_busy() -> float:
+  """CPU seconds the whole machine has been busy since boot (`/proc/stat`; NaN elsewhere):
+  the run's own CPU time subtracted, what is left is other processes' load."""
+  try:
+    with open("/proc/stat") as f:
+      fields = [int(x) for x in f.readline().split()[1:]]
+  except (OSError, ValueError):
+    return float("nan")
+  idle = fields[3] + (fields[4] if len(fields) > 4 else 0)  # idle + iowait.
+  return (sum(fields[:8]) - idle) / os.sysconf("SC_CLK_TCK")
 
 
 def read(record_dir: pathlib.Path) -> list[dict]:
@@ -125,38 +153,42 @@ def tables(meta: dict, records: list[dict], *, top: int) -> str:
   phases = [r for r in records if r["kind"] == "phase"]
   fixtures = [r for r in records if r["kind"] == "fixture"]
   subs = [r for r in records if r["kind"] == "sub"]
-  sub_by_test = collections.defaultdict(lambda: [0, 0, 0.0])  # compiles, processes, compile_s
+  sub_by_test = collections.defaultdict(lambda: [0, 0, 0.0, 0])  # compiles, processes, s, hits
   for s in subs:
     entry = sub_by_test[s["nodeid"]]
     entry[0] += s["compiles"]
     entry[1] += 1
     entry[2] += s["compile_s"]
+    entry[3] += s.get("cache_hits", 0)
 
   tests = {}
   for r in phases:
     t = tests.setdefault(r["nodeid"], dict(module=r["module"], worker=r["worker"], cpu=0.0,
                                            child_cpu=0.0, wall=0.0, compiles=0, compile_s=0.0,
-                                           call_wall=0.0, failed=False))
+                                           cache_hits=0, call_wall=0.0, failed=False))
     for k in ("cpu", "child_cpu", "wall", "compiles", "compile_s"):
       t[k] += r[k]
+    t["cache_hits"] += r.get("cache_hits", 0)
     if r["when"] == "call":
       t["call_wall"] = r["wall"]
     t["failed"] |= r["failed"]
   for nodeid, t in tests.items():
     t["sub_compiles"] = sub_by_test.get(nodeid, [0])[0]
+    t["cache_hits"] += sub_by_test.get(nodeid, [0, 0, 0.0, 0])[3]
 
   modules = {}
   for t in tests.values():
     m = modules.setdefault(t["module"], dict(tests=0, cpu=0.0, child_cpu=0.0, wall=0.0,
                                              compiles=0, compile_s=0.0, sub_compiles=0,
-                                             workers=set()))
+                                             cache_hits=0, workers=set()))
     m["tests"] += 1
-    for k in ("cpu", "child_cpu", "wall", "compiles", "compile_s", "sub_compiles"):
+    for k in ("cpu", "child_cpu", "wall", "compiles", "compile_s", "sub_compiles", "cache_hits"):
       m[k] += t[k]
     m["workers"].add(t["worker"])
 
   total = {k: sum(m[k] for m in modules.values())
-           for k in ("tests", "cpu", "child_cpu", "wall", "compiles", "compile_s", "sub_compiles")}
+           for k in ("tests", "cpu", "child_cpu", "wall", "compiles", "compile_s", "sub_compiles",
+                     "cache_hits")}
   lines = [
       "# Where the suite's time goes",
       "",
@@ -164,31 +196,40 @@ def tables(meta: dict, records: list[dict], *, top: int) -> str:
       "(`time.process_time` around each test's set-up, call and teardown) and, apart, those of",
       "the subprocesses a test waited for (the benchmark smoke runs, the CLI, x64, sharding, the",
       "docs build); compiles are XLA backend compiles (`jax.monitoring`), in the worker and, apart,",
-      "in the tests' Python subprocesses. Wall seconds are per test as the worker saw them; the",
+      "in the tests' Python subprocesses; cache hits are programs loaded from JAX's persistent",
+      "compilation cache instead, if `JAX_COMPILATION_CACHE_DIR` is set (the suite sets none).",
+      "Wall seconds are per test as the worker saw them; the",
       "total wall time is the whole command's, and depends on the machine's load (given).",
       "",
       f"- command: `{meta['command']}` (from the repository root; `{meta['python']}`)",
       f"- result: {meta['summary']} (exit {meta['returncode']})",
       f"- total wall: {_f(meta['wall'])} s; total CPU of all processes: {_f(meta['cpu'])} s"
       f" ({_f(meta['cpu'] / max(meta['wall'], 1e-9), 2)} cores busy on average)",
-      f"- machine: {meta['machine']}; 1-min load average {meta['load'][0]:.2f} at the start,"
-      f" {meta['load'][1]:.2f} at the end",
+      f"- machine: {meta['machine'].split(', 1-min load')[0]}; 1-min load average"
+      f" {meta['load'][0]:.2f} at the start, {meta['load'][1]:.2f} at the end, mean"
+      f" {meta['load_mean']:.2f} and max {meta['load_max']:.2f} while it ran (sampled every 10 s)",
+      f"- other processes' load: the machine was busy {_f(meta['machine_busy'])} CPU s during the"
+      f" run, {_f(meta['machine_busy'] - meta['cpu'])} s of them not this run's"
+      f" ({_f((meta['machine_busy'] - meta['cpu']) / max(meta['wall'], 1e-9), 2)} cores on"
+      f" average)",
       f"- summed over tests: worker CPU {_f(total['cpu'])} s, subprocess CPU"
       f" {_f(total['child_cpu'])} s, {total['compiles']} compiles in workers"
-      f" ({_f(total['compile_s'])} s), {total['sub_compiles']} in subprocesses",
+      f" ({_f(total['compile_s'])} s with the cache loads), {total['sub_compiles']} in subprocesses,"
+      f" {total['cache_hits']} programs loaded from the compilation cache",
       "",
       "## Per module (by worker CPU + subprocess CPU)",
       "",
       "| module | tests | worker CPU s | subprocess CPU s | wall s | compiles | compile s |"
-      " subprocess compiles |",
-      "|---|---:|---:|---:|---:|---:|---:|---:|",
+      " subprocess compiles | cache hits |",
+      "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
   ]
   for name, m in sorted(modules.items(), key=lambda kv: -(kv[1]["cpu"] + kv[1]["child_cpu"])):
     lines.append(f"| {name} | {m['tests']} | {_f(m['cpu'])} | {_f(m['child_cpu'])} | "
-                 f"{_f(m['wall'])} | {m['compiles']} | {_f(m['compile_s'])} | {m['sub_compiles']} |")
+                 f"{_f(m['wall'])} | {m['compiles']} | {_f(m['compile_s'])} | {m['sub_compiles']} | "
+                 f"{m['cache_hits']} |")
   lines.append(f"| **total** | {total['tests']} | {_f(total['cpu'])} | {_f(total['child_cpu'])} | "
                f"{_f(total['wall'])} | {total['compiles']} | {_f(total['compile_s'])} | "
-               f"{total['sub_compiles']} |")
+               f"{total['sub_compiles']} | {total['cache_hits']} |")
 
   lines += ["", f"## Slowest tests (top {top} by wall: set-up + call + teardown)", "",
             "| test | wall s | worker CPU s | subprocess CPU s | compiles | subprocess compiles |",
