@@ -118,7 +118,7 @@ def run(pytest_args: list[str], record_dir: pathlib.Path) -> dict:
                   if re.search(r"\d+ (passed|failed|error)", line)), "(no summary)")
   if done.returncode not in (0, 1):
     sys.stderr.write(out[-4000:] + done.stderr[-4000:])
-  return dict(command="pytest " + " ".join(shlex.quote(a) for a in pytest_args), wall=wall,
+  return dict(command=" ".join(["pytest"] + [shlex.quote(a) for a in pytest_args]), wall=wall,
               cpu=(cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime),
               returncode=done.returncode, summary=summary, load=(load0, os.getloadavg()[0]),
               load_mean=sum(loads) / max(len(loads), 1), load_max=max(loads, default=load0),
