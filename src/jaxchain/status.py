@@ -84,9 +84,10 @@ MESSAGES = {
                 "non-positive half-extent, NaN or negative inverse mass or friction, NaN "
                 "gravity); check inputs: accelerations, dt, coordinates far beyond float "
                 "precision, values set inside traced code",
-    DEPTH_EXHAUSTED: "a chain was longer than Config.depth could resolve in the last pass; "
-                     "penetration may be left, or a push, impact or friction not carried "
-                     "through the whole chain (wrong velocities): raise depth (or iterations)",
+    DEPTH_EXHAUSTED: "a chain was longer than Config.depth could resolve in some pass of a "
+                     "step; penetration may be left, or a push, impact or friction not carried "
+                     "through the whole chain (positions or velocities differ from a full-depth "
+                     "step): raise depth",
     FAST_BODY: "a body moved farther in one substep than it and the thinnest body are thick, "
                "so it may have passed through something (raise Config.substeps)",
     LINK_OVERFLOW: "a body had more links in one direction than Config.links keeps; the "

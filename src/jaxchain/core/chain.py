@@ -222,7 +222,9 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   t_dir = along(vel[1], vel[0])
   sliding = jnp.where(f.mask, t_dir[None] - f.front(t_dir), 0.0)
   sticking = f.mask & (jnp.abs(sliding) <= stick)
-  impulse, shared, tree = link_impulses(net_vel, f, mass, leans, jammed, sticking, depth, converge)
+  impulse, shared, tree, impulse_short = link_impulses(net_vel, f, mass, leans, jammed, sticking,
+                                                       depth, converge)
+  exhausted = exhausted | impulse_short
   inv_mass = safe_divide(jnp.ones_like(mass), mass)
   free = f.mask & ~jammed
 
@@ -295,10 +297,16 @@ def link_impulses(change: jax.Array, f: Links, mass: jax.Array, leans: jax.Array
   The same hops give the friction units: `F_d(i) = m_i + sum over i's front, through
   sticking links, of F_d(j) / (j's sticking pushers)`.
 
+  The momentum sums run `depth` hops and a check hop: a link whose sums one hop more
+  would still change (a momentum change farther than `depth` links behind it: the
+  impulses of a row hit at one end run through every link of the row) reports the cut.
+  The friction units are cut short no later than the backing (`Pass.short`, which
+  friction reads).
+
   Returns:
-    `(impulse, units, tree)`: `[L, 4, n, B]` impulses `>= 0`; `[4, n, B]` friction
-    units; `[n, B]` bool, bodies all of whose links got the same impulse from both
-    sides (as on a tree).
+    `(impulse, units, tree, exhausted)`: `[L, 4, n, B]` impulses `>= 0`; `[4, n, B]`
+    friction units; `[n, B]` bool, bodies all of whose links got the same impulse from
+    both sides (as on a tree); `[B]` bool, a link's momentum sums were cut short.
   """
   dtype = mass.dtype
   count = jnp.sum(f.mask, axis=0).astype(dtype)
@@ -313,14 +321,16 @@ def link_impulses(change: jax.Array, f: Links, mass: jax.Array, leans: jax.Array
     return (own_q + jnp.sum(jnp.where(f.mask, f.front(ahead_q), 0.0), axis=0),
             own_u + jnp.sum(jnp.where(sticking, f.front(units * stick_split), 0.0), axis=0))
 
-  q, units = repeat(hop, (own_q, own_u), depth, converge)
+  (q, units), (q_short, _) = repeat(hop, (own_q, own_u), depth, converge, check=True)
   r = q * split  # Momentum per pusher.
   r_j, r_i = f.front(r), opposite(r)[None]
   leans_j, leans_i = f.front(leans), opposite(leans)[None]
   estimate = jnp.where(leans_j, r_i, jnp.where(leans_i, r_j, jnp.minimum(r_j, r_i)))
   agree = leans_j | leans_i | (jnp.abs(r_j - r_i) <= 1e-5 * jnp.maximum(jnp.abs(r_j), jnp.abs(r_i)))
   tree = fold("all", agree | ~f.mask, 2)
-  return jnp.where(f.mask & ~jammed, jnp.maximum(estimate, 0.0), 0.0), units, tree
+  cut = f.mask & ~jammed & (f.front(q_short) | opposite(q_short)[None])
+  return (jnp.where(f.mask & ~jammed, jnp.maximum(estimate, 0.0), 0.0), units, tree,
+          any_world(cut))
 
 
 def apply_impulses(impulse: jax.Array, inv_mass: jax.Array) -> jax.Array:

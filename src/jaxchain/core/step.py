@@ -29,8 +29,9 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
 
   Returns:
     `(pos, vel, status [B], crushed [n, B], touching [4, n, B])` (`vel` None without
-    `vel`; `touching` ORed over the passes). `DEPTH_EXHAUSTED` comes from the last pass
-    (earlier passes may leave work that later ones finish).
+    `vel`; `touching` ORed over the passes). `DEPTH_EXHAUSTED` is that of every pass: a
+    later pass redoes the positions an earlier one cut short, not the velocities, and
+    starts from other positions than a full-depth pass would have left.
   """
   n, B = bodies.shape
   mass = chain.body_mass(bodies.inv_mass, bodies.active)
@@ -66,7 +67,7 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
     return p + out.disp, v, scaled, exhausted, out.crushed
 
   def one_pass(_, carry):
-    p, v, code, _, crushed, touching = carry
+    p, v, code, cut, crushed, touching = carry
     cand, found = pairs.candidates(p, bodies, config, table)
     cand = contacts.admit(cand, bodies, layers=config.layers, sensors=config.sensors)
     ow = one_way if one_way is None or v is None else dataclasses.replace(one_way, vel=v)
@@ -84,7 +85,7 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
       new_p, v, scaled, exhausted, hit = resolve(f, p, v)
     code = (code | found | flags.bit(overflow, status.LINK_OVERFLOW)
             | flags.bit(scaled, status.IMPULSES_SCALED))
-    return new_p, v, code, exhausted, crushed | hit, touching | contacts.touching(f)
+    return new_p, v, code, cut | exhausted, crushed | hit, touching | contacts.touching(f)
 
   init = (pos, vel, jnp.zeros((B,), jnp.int32), jnp.zeros((B,), bool), jnp.zeros((n, B), bool),
           jnp.zeros((NUM_DIRECTIONS, n, B), bool))
