@@ -30,8 +30,6 @@ def tiles(n: int = 10):
 # --- Seams (issue 18 item 1) -------------------------------------------------------------
 
 
-@pytest.mark.xfail(strict=True, reason="seam rule ignores one-way bodies: a player on a one-way "
-                   "platform with its edge on the seam to a solid tile is stopped by its side")
 def test_a_player_on_a_one_way_platform_runs_onto_a_flush_solid_tile():
   # Tiles 0-4 (x in [0, 5]) are one-way (a jump-through ledge), tiles 5-9 solid, all tops
   # at y = 0.5: one flat surface. The player (half 0.4) stands on the one-way tile 4 with
@@ -52,8 +50,6 @@ def test_a_player_on_a_one_way_platform_runs_onto_a_flush_solid_tile():
   np.testing.assert_allclose(traj.pos[:, 0, 1], 0.9, atol=1e-6)
 
 
-@pytest.mark.xfail(strict=True, reason="level-along-one-axis rule applies to pairs apart on both "
-                   "axes: a body landing with its edge on a floor seam hits the next tile's side")
 def test_a_body_landing_on_a_tile_floor_at_a_seam_keeps_its_speed():
   # A frictionless player (half 0.4) falls at 6 u/s onto a floor of unit tiles while
   # moving right at 2 u/s, its right edge exactly on the seam x = 5 at the start of the
@@ -74,8 +70,6 @@ def test_a_body_landing_on_a_tile_floor_at_a_seam_keeps_its_speed():
   np.testing.assert_allclose(traj.pos[-1, 0, 0], free_x(4.6, 2.0, 0.0, steps), rtol=1e-6)
 
 
-@pytest.mark.xfail(strict=True, reason="level-along-one-axis rule applies to pairs apart on both "
-                   "axes: a body hitting a tile wall with its bottom on a seam is caught, grounded")
 def test_a_body_hitting_a_wall_of_tiles_at_a_seam_keeps_falling():
   # A frictionless player (half 0.4) flies right at 9 u/s into a wall of unit tiles (faces
   # at x = 5) with its bottom edge exactly on the seam y = 3, 0.1 from the wall. It hits

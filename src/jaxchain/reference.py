@@ -62,13 +62,15 @@ class _Scene:
 
     The axis is the one of smaller overlap (x on a tie), except for a pair that was
     apart at `start` (not overlapping by more than the skin along some axis): then it is
-    the axis along which their faces were level at `start` (overlap within the skin) if
-    that holds for exactly one axis, else the axis along which the gap closed last on
-    the straight
-    path from `start` to now (its time of impact); the side is the one b lay on at
+    the axis along which their faces were level at `start` (overlap within the skin)
+    while overlapping by more than the skin along the other axis, else the axis along
+    which the gap closed last on the straight path from `start` to now (its time of
+    impact); the side is the one b lay on at
     `start`. A pair level along both axes at `start` (a corner contact) then takes the
     axis a surface of immovable bodies beside the corner decides, if one does
-    (`seam_axis`).
+    (`seam_axis`); a pair level along one axis and apart along the other, overlapping
+    within the skin now, the level axis if a slides along a face flush with b's
+    (`approach_axis`).
     """
     delta = self.pos[b] - self.pos[a]
     o = self.half[a] + self.half[b] - np.abs(delta)
@@ -77,7 +79,8 @@ class _Scene:
       delta0 = self.start[b] - self.start[a]
       o0 = self.half[a] + self.half[b] - np.abs(delta0)
       if min(o0) <= self.skin:  # Apart at the start (a rounding overlap is touching).
-        level = [abs(o0[k]) <= self.skin for k in range(2)]
+        # Level along one axis while overlapping beyond the skin along the other.
+        level = [abs(o0[k]) <= self.skin and o0[1 - k] > self.skin for k in range(2)]
         t = [0.0 if o0[k] > 0 else 2.0 if o[k] <= 0 else -o0[k] / (o[k] - o0[k])
              for k in range(2)]
         if level[0] != level[1]:  # Faces level along one axis: it keeps that axis.
@@ -86,6 +89,9 @@ class _Scene:
           axis = 1 if t[1] > t[0] else 0
       if abs(o0[0]) <= self.skin and abs(o0[1]) <= self.skin:  # A corner contact: seams.
         axis = self.seam_axis(a, b, delta0, axis)
+      elif (any(abs(o0[k]) <= self.skin and o0[1 - k] < -self.skin for k in range(2))
+            and min(o) >= -self.skin):  # Approaching b's corner, level along one axis.
+        axis = self.approach_axis(a, b, o0, delta0, axis)
       if min(o0) <= self.skin:
         delta = delta0
     if delta[axis] > 0 or (delta[axis] == 0 and b > a):
@@ -153,19 +159,36 @@ class _Scene:
       return 1 if beside_x else 0
     return axis
 
+  def approach_axis(self, a: int, b: int, o0, delta0, axis: int) -> int:
+    """The axis of a pair level along one axis and apart along the other at `start`,
+    near now: if the space just outside a's level face, at its end towards b, lies
+    inside an immovable body (a one-way one only walked on), a slides along a surface
+    flush with b's face and keeps the level axis; else `axis` (the time of impact)."""
+    level = 1 if abs(o0[1]) <= self.skin else 0
+    s = [1.0 if delta0[k] > 0 else -1.0 for k in range(2)]
+    if self.covered(a, level, s[level], s[1 - level]):
+      return level
+    return axis
+
   def covered(self, i: int, face_axis: int, face_sign: float, corner_sign: float) -> bool:
     """Whether the space just outside body i's face (face_axis, face_sign) at `start`,
     next to that face's corner on side corner_sign of the other axis, lies inside an
-    immovable body k: along the face's axis k starts at or before the face (within the
-    skin) and ends beyond it; along the other axis it reaches the corner (within the
-    skin) and extends past it into the face."""
+    immovable body k (a one-way one only under i's bottom face, its top level with that
+    face within the skin: a one-way top is a surface when walked on): along the face's
+    axis k starts at or before the face (within the skin) and ends beyond it; along the
+    other axis it reaches the corner (within the skin) and extends past it into the
+    face."""
     a, b, s, t = face_axis, 1 - face_axis, face_sign, corner_sign
+    under = face_axis == 1 and face_sign < 0  # The space under i's bottom face.
     for k in range(self.n):
-      if k == i or not np.isinf(self.mass[k]) or self.one_way[k]:  # One-way: no surface.
+      # A one-way body is a surface only walked on: under i, its top level with i's bottom.
+      if k == i or not np.isinf(self.mass[k]) or (self.one_way[k] and not under):
         continue
       d = self.start[k] - self.start[i]
       h_i, h_k = self.half[i], self.half[k]
       face = s * d[a] - h_k[a] - h_i[a] <= self.skin and s * d[a] + h_k[a] - h_i[a] > self.skin
+      if self.one_way[k] and not s * d[a] - h_k[a] - h_i[a] >= -self.skin:
+        continue
       corner = (t * d[b] + h_k[b] - h_i[b] >= -self.skin
                 and t * d[b] - h_k[b] - h_i[b] < -self.skin)
       if face and corner:

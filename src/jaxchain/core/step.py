@@ -42,9 +42,11 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
                               solid=bodies.fixed & ~bodies.one_way)
   # Seams: the faces of immovable bodies make surfaces (one-way bodies excepted; sensors
   # are out of every candidate table already).
-  surface = None
+  surface = walk = None
   if config.immovable and start is not None:
     surface = bodies.fixed & ~bodies.one_way if config.one_way else bodies.fixed
+    if config.one_way:  # One-way tops are surfaces when walked on.
+      walk = bodies.fixed & bodies.one_way
   table = pairs.build(pos, bodies, config, start) if table is None else table
 
   def resolve(f, p, v):
@@ -71,7 +73,7 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
     cand, found = pairs.candidates(p, bodies, config, table)
     cand = contacts.admit(cand, bodies, layers=config.layers, sensors=config.sensors)
     ow = one_way if one_way is None or v is None else dataclasses.replace(one_way, vel=v)
-    c = contacts.contacts(p, bodies.half, cand, config.skin, start, ow, surface)
+    c = contacts.contacts(p, bodies.half, cand, config.skin, start, ow, surface, walk)
     f, overflow = contacts.link_table(c, cand, config.links, rows=movable)
     if f.slots > 1 and f.idx is not None and B > 1:
       # Link slots that cost what the batch needs: a settled room has at most one link
