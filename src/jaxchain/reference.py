@@ -39,6 +39,8 @@ TOL = 1e-9  # Penetration below this counts as resolved.
 # nothing but NumPy): a margin, a fraction of the two half-heights, and a speed.
 ONE_WAY_MARGIN = 0.05
 ONE_WAY_RISE = 1e-6
+# Friction solves per substep (`jaxchain.core.friction.ROUNDS`): up to two slip rounds.
+FRICTION_ROUNDS = 3
 
 
 class _Scene:
@@ -476,10 +478,12 @@ def _crush(vel, movable, links, crushed, start_vel):
 def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
   """Coulomb friction on units (see `jaxchain.velocity.friction`): `before` are the
   velocities that decide which links stick (slide slower than `stick`); links sliding
-  slower than `slip` take no part. Solved on those units once; a sticking link whose
-  budget `sqrt(mu_i mu_j) * normal` cannot hold the shear that moving as one needs
-  slips, and the impulses are solved again on the units without it (the slipping link
-  rubs like any other once its bodies slide apart)."""
+  slower than `slip` take no part. Solved on those units, then up to
+  `FRICTION_ROUNDS - 1` slip rounds: of the sticking links whose budget
+  `sqrt(mu_i mu_j) * normal` cannot hold the shear that moving as one needs, each
+  body's most overloaded one (largest shear over budget) slips: it leaves the units and
+  carries its budget the way the shear pointed (kinetic friction), and the impulses are
+  solved again."""
   n = len(vel)
   movable = ~np.isinf(mass)
   sticking = [abs(before[i, 1 - a] - before[j, 1 - a]) <= stick for i, j, a, _ in links]
@@ -487,9 +491,10 @@ def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
   rubbing = [b > 0 and abs(vel[i, 1 - a] - vel[j, 1 - a]) > slip
              for (i, j, a, _), b in zip(links, budgets)]
 
-  def solve(sticking):
-    """Velocity changes on the units of the `sticking` links; also each body's change
-    per unit direction, its units and their pushers."""
+  def solve(sticking, carried):
+    """Velocity changes on the units of the `sticking` links, the slipped links
+    carrying `carried`; also each body's change per unit direction, its units and their
+    pushers."""
     def ahead(q, axis, sign):  # Bodies in front of q along (axis, sign), sticking links.
       out = []
       for (i, j, a, s), st in zip(links, sticking):
@@ -524,23 +529,24 @@ def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
         count[j] += 1
     dv = np.zeros_like(vel)
     along = {(a, s): np.zeros(n) for a in (0, 1) for s in (1.0, -1.0)}
-    for (i, j, axis, sign), b, r in zip(links, budgets, rubbing):
-      if not r:
+    for (i, j, axis, sign), b, r, sl in zip(links, budgets, rubbing, carried):
+      if not r and sl == 0:
         continue
       t = 1 - axis
       unit_i, unit_j = unit(i, axis, -sign), unit(j, axis, sign)
       w = (count[i] / unit_i if unit_i > 0 else 0.0) + (count[j] / unit_j if unit_j > 0 else 0.0)
-      impulse = np.clip((vel[i, t] - vel[j, t]) / w, -b, b)
+      impulse = sl if sl != 0 else np.clip((vel[i, t] - vel[j, t]) / w, -b, b)
       if unit_i > 0:
         deliver(i, axis, -sign, -impulse / unit_i, dv, along)
       if unit_j > 0:
         deliver(j, axis, sign, impulse / unit_j, dv, along)
     return dv, along, unit, pushers
 
-  dv, along, unit, pushers = solve(sticking)
-  for k, ((i, j, axis, sign), st, b) in enumerate(zip(links, sticking, budgets)):
-    if not st:
-      continue
+  carried = [0.0] * len(links)  # What a slipped link carries.
+  for r in range(FRICTION_ROUNDS):
+    dv, along, unit, pushers = solve(sticking, carried)
+    if r == FRICTION_ROUNDS - 1:
+      break
 
     def share(q, axis, sign):  # The unit q heads along (axis, sign), per pusher.
       p = pushers(q, axis, sign)
@@ -548,9 +554,20 @@ def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
 
     # The shear moving as one needs: j's unit takes i's change along the link's
     # direction, i's unit j's change along the opposite one.
-    shear = along[(axis, sign)][i] * share(j, axis, sign) - along[(axis, -sign)][j] * share(
-        i, axis, -sign)
-    if abs(shear) > b:
-      sticking[k] = False
-  dv, _, _, _ = solve(sticking)
+    shear, ratio = {}, {}
+    for k, ((i, j, axis, sign), st, b) in enumerate(zip(links, sticking, budgets)):
+      if st:
+        shear[k] = along[(axis, sign)][i] * share(j, axis, sign) - along[(axis, -sign)][
+            j] * share(i, axis, -sign)
+        if abs(shear[k]) > b:
+          ratio[k] = abs(shear[k]) / b if b > 0 else np.inf
+    worst = np.zeros(n)  # Each body's most overloaded slipping link.
+    for k, q in ratio.items():
+      for body in links[k][:2]:
+        worst[body] = max(worst[body], q)
+    for k, q in ratio.items():
+      i, j = links[k][:2]
+      if q >= worst[i] and q >= worst[j]:  # It slips: kinetic friction, out of the units.
+        sticking[k] = False
+        carried[k] = float(np.clip(shear[k], -budgets[k], budgets[k]))
   return vel + dv
