@@ -109,10 +109,11 @@ MESSAGES = {
                      "neighbour table's build and a pass or the sensors that read it; contacts "
                      "may have been missed (re-run Config.for_world on the current world, or "
                      "raise margin or substeps)",
-    PRECISION_LOST: "a body moving faster than 1e-3 units/s moved less in a substep than the "
-                    "float spacing of its coordinate (far from the origin: at x = 1e5 float32 "
-                    "steps by 0.0078), so its motion was rounded away; recentre the world near "
-                    "the origin, or use float64 (jax_enable_x64)",
+    PRECISION_LOST: "a body moving faster than 1e-3 units/s moved less in a substep than 8 "
+                    "float spacings of its coordinate (far from the origin: at x = 1e5 float32 "
+                    "steps by 0.0078), so up to 1/16 of its motion or all of it was rounded "
+                    "away; recentre the world near the origin, or use float64 "
+                    "(jax_enable_x64)",
     FRICTION_OFF: "the World sets friction coefficients > 0 but Config.friction is off: they "
                   "were ignored (use Config.for_world, or friction=True)",
     GRAVITY_OFF: "the World sets gravity on movable bodies but Config.gravity is off: it was "

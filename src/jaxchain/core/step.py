@@ -126,7 +126,6 @@ def substep(state: State, bodies: Bodies, config, sub_dt: float,
     vel = vel + jnp.where(movable, bodies.gravity[:, None, :] * sub_dt, 0.0)
   code = flags.too_fast(bodies, vel, sub_dt)
   motion = jnp.where(active, vel * sub_dt, 0.0)
-  code = code | flags.motion_lost(pos, vel, motion)
   # pos + motion, written to round as XLA:CPU rounds the [n, 2] layout of the previous
   # core (one fused multiply-add along x, two roundings along y): bit-identical results
   # while both exist.
@@ -137,7 +136,8 @@ def substep(state: State, bodies: Bodies, config, sub_dt: float,
                                           table=table)
   # Sensors see every overlap during the step: swept over this substep's motion.
   sensed, seen = sensors(bodies, p, config, table, start=pos)
-  code = code | found | seen | flags.finite(bodies, p, v) | crushed_bit(crushed)
+  code = (code | found | seen | flags.finite(bodies, p, v) | crushed_bit(crushed)
+          | flags.motion_lost(bodies, pos, p, v, sub_dt))
   return State(pos=p, vel=v, status=state.status | code, touching=state.touching | touching,
                crushed=state.crushed | crushed, sensed=state.sensed | sensed)
 
