@@ -20,11 +20,14 @@ import work_meter  # noqa: E402  (benchmarks/ is not a package)
 # Per body-step: (elements produced, elements gathered) on the common path (the cheaper
 # branch of each `lax.cond` over the batch) and on the worst one. Counted for the
 # batch-minor core (issue 27: room 10,611 / 456 and 15,948 / 1,116; demo 8,604 / 456 and
-# 17,236 / 1,608; platformer1 8,523 / 232 and 14,264 / 768), plus a tenth.
+# 17,236 / 1,608; platformer1 8,523 / 232 and 14,264 / 768), plus a tenth. Worst branch
+# raised for issue 29 item 4: friction's second slip round (a third solve, run only in a
+# batch where the second holding test dropped a link) is counted there: room 18,031 /
+# 1,228, demo 20,332 / 1,800, platformer1 16,712 / 876, plus about 3%.
 BUDGETS = {
-    "room of 64": ((11_700, 500), (17_600, 1_230)),
-    "demo": ((9_500, 500), (19_000, 1_770)),
-    "platformer1": ((9_400, 260), (15_700, 850)),
+    "room of 64": ((11_700, 500), (18_600, 1_270)),
+    "demo": ((9_500, 500), (21_000, 1_860)),
+    "platformer1": ((9_400, 260), (17_200, 900)),
 }
 
 

@@ -116,7 +116,7 @@ def _pair_directions(world: World, skin: float) -> jax.Array:
   solid = bodies.fixed & ~bodies.one_way
   ow = core.contacts.OneWay(one_way=bodies.active & bodies.one_way, solid=solid, vel=state.vel)
   c = core.contacts.contacts(state.pos, bodies.half, cand, skin, start=state.pos, one_way=ow,
-                             surface=solid)
+                             surface=solid, walk=bodies.fixed & bodies.one_way)
   code = c.code[..., 0].T  # [n, n]: row i, partner j.
   return code[None] == jnp.arange(NUM_DIRECTIONS, dtype=code.dtype)[:, None, None]
 

@@ -39,6 +39,8 @@ TOL = 1e-9  # Penetration below this counts as resolved.
 # nothing but NumPy): a margin, a fraction of the two half-heights, and a speed.
 ONE_WAY_MARGIN = 0.05
 ONE_WAY_RISE = 1e-6
+# Friction solves per substep (`jaxchain.core.friction.ROUNDS`): up to two slip rounds.
+FRICTION_ROUNDS = 3
 
 
 class _Scene:
@@ -62,13 +64,15 @@ class _Scene:
 
     The axis is the one of smaller overlap (x on a tie), except for a pair that was
     apart at `start` (not overlapping by more than the skin along some axis): then it is
-    the axis along which their faces were level at `start` (overlap within the skin) if
-    that holds for exactly one axis, else the axis along which the gap closed last on
-    the straight
-    path from `start` to now (its time of impact); the side is the one b lay on at
+    the axis along which their faces were level at `start` (overlap within the skin)
+    while overlapping by more than the skin along the other axis, else the axis along
+    which the gap closed last on the straight path from `start` to now (its time of
+    impact); the side is the one b lay on at
     `start`. A pair level along both axes at `start` (a corner contact) then takes the
     axis a surface of immovable bodies beside the corner decides, if one does
-    (`seam_axis`).
+    (`seam_axis`); a pair level along one axis and apart along the other, overlapping
+    within the skin now, the level axis if a slides along a face flush with b's
+    (`approach_axis`).
     """
     delta = self.pos[b] - self.pos[a]
     o = self.half[a] + self.half[b] - np.abs(delta)
@@ -77,7 +81,8 @@ class _Scene:
       delta0 = self.start[b] - self.start[a]
       o0 = self.half[a] + self.half[b] - np.abs(delta0)
       if min(o0) <= self.skin:  # Apart at the start (a rounding overlap is touching).
-        level = [abs(o0[k]) <= self.skin for k in range(2)]
+        # Level along one axis while overlapping beyond the skin along the other.
+        level = [abs(o0[k]) <= self.skin and o0[1 - k] > self.skin for k in range(2)]
         t = [0.0 if o0[k] > 0 else 2.0 if o[k] <= 0 else -o0[k] / (o[k] - o0[k])
              for k in range(2)]
         if level[0] != level[1]:  # Faces level along one axis: it keeps that axis.
@@ -86,6 +91,9 @@ class _Scene:
           axis = 1 if t[1] > t[0] else 0
       if abs(o0[0]) <= self.skin and abs(o0[1]) <= self.skin:  # A corner contact: seams.
         axis = self.seam_axis(a, b, delta0, axis)
+      elif (any(abs(o0[k]) <= self.skin and o0[1 - k] < -self.skin for k in range(2))
+            and min(o) >= -self.skin):  # Approaching b's corner, level along one axis.
+        axis = self.approach_axis(a, b, o0, delta0, axis)
       if min(o0) <= self.skin:
         delta = delta0
     if delta[axis] > 0 or (delta[axis] == 0 and b > a):
@@ -153,19 +161,36 @@ class _Scene:
       return 1 if beside_x else 0
     return axis
 
+  def approach_axis(self, a: int, b: int, o0, delta0, axis: int) -> int:
+    """The axis of a pair level along one axis and apart along the other at `start`,
+    near now: if the space just outside a's level face, at its end towards b, lies
+    inside an immovable body (a one-way one only walked on), a slides along a surface
+    flush with b's face and keeps the level axis; else `axis` (the time of impact)."""
+    level = 1 if abs(o0[1]) <= self.skin else 0
+    s = [1.0 if delta0[k] > 0 else -1.0 for k in range(2)]
+    if self.covered(a, level, s[level], s[1 - level]):
+      return level
+    return axis
+
   def covered(self, i: int, face_axis: int, face_sign: float, corner_sign: float) -> bool:
     """Whether the space just outside body i's face (face_axis, face_sign) at `start`,
     next to that face's corner on side corner_sign of the other axis, lies inside an
-    immovable body k: along the face's axis k starts at or before the face (within the
-    skin) and ends beyond it; along the other axis it reaches the corner (within the
-    skin) and extends past it into the face."""
+    immovable body k (a one-way one only under i's bottom face, its top level with that
+    face within the skin: a one-way top is a surface when walked on): along the face's
+    axis k starts at or before the face (within the skin) and ends beyond it; along the
+    other axis it reaches the corner (within the skin) and extends past it into the
+    face."""
     a, b, s, t = face_axis, 1 - face_axis, face_sign, corner_sign
+    under = face_axis == 1 and face_sign < 0  # The space under i's bottom face.
     for k in range(self.n):
-      if k == i or not np.isinf(self.mass[k]) or self.one_way[k]:  # One-way: no surface.
+      # A one-way body is a surface only walked on: under i, its top level with i's bottom.
+      if k == i or not np.isinf(self.mass[k]) or (self.one_way[k] and not under):
         continue
       d = self.start[k] - self.start[i]
       h_i, h_k = self.half[i], self.half[k]
       face = s * d[a] - h_k[a] - h_i[a] <= self.skin and s * d[a] + h_k[a] - h_i[a] > self.skin
+      if self.one_way[k] and not s * d[a] - h_k[a] - h_i[a] >= -self.skin:
+        continue
       corner = (t * d[b] + h_k[b] - h_i[b] >= -self.skin
                 and t * d[b] - h_k[b] - h_i[b] < -self.skin)
       if face and corner:
@@ -453,10 +478,12 @@ def _crush(vel, movable, links, crushed, start_vel):
 def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
   """Coulomb friction on units (see `jaxchain.velocity.friction`): `before` are the
   velocities that decide which links stick (slide slower than `stick`); links sliding
-  slower than `slip` take no part. Solved on those units once; a sticking link whose
-  budget `sqrt(mu_i mu_j) * normal` cannot hold the shear that moving as one needs
-  slips, and the impulses are solved again on the units without it (the slipping link
-  rubs like any other once its bodies slide apart)."""
+  slower than `slip` take no part. Solved on those units, then up to
+  `FRICTION_ROUNDS - 1` slip rounds: of the sticking links whose budget
+  `sqrt(mu_i mu_j) * normal` cannot hold the shear that moving as one needs, each
+  body's most overloaded one (largest shear over budget) slips: it leaves the units and
+  carries its budget the way the shear pointed (kinetic friction), and the impulses are
+  solved again."""
   n = len(vel)
   movable = ~np.isinf(mass)
   sticking = [abs(before[i, 1 - a] - before[j, 1 - a]) <= stick for i, j, a, _ in links]
@@ -464,9 +491,10 @@ def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
   rubbing = [b > 0 and abs(vel[i, 1 - a] - vel[j, 1 - a]) > slip
              for (i, j, a, _), b in zip(links, budgets)]
 
-  def solve(sticking):
-    """Velocity changes on the units of the `sticking` links; also each body's change
-    per unit direction, its units and their pushers."""
+  def solve(sticking, carried):
+    """Velocity changes on the units of the `sticking` links, the slipped links
+    carrying `carried`; also each body's change per unit direction, its units and their
+    pushers."""
     def ahead(q, axis, sign):  # Bodies in front of q along (axis, sign), sticking links.
       out = []
       for (i, j, a, s), st in zip(links, sticking):
@@ -501,23 +529,24 @@ def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
         count[j] += 1
     dv = np.zeros_like(vel)
     along = {(a, s): np.zeros(n) for a in (0, 1) for s in (1.0, -1.0)}
-    for (i, j, axis, sign), b, r in zip(links, budgets, rubbing):
-      if not r:
+    for (i, j, axis, sign), b, r, sl in zip(links, budgets, rubbing, carried):
+      if not r and sl == 0:
         continue
       t = 1 - axis
       unit_i, unit_j = unit(i, axis, -sign), unit(j, axis, sign)
       w = (count[i] / unit_i if unit_i > 0 else 0.0) + (count[j] / unit_j if unit_j > 0 else 0.0)
-      impulse = np.clip((vel[i, t] - vel[j, t]) / w, -b, b)
+      impulse = sl if sl != 0 else np.clip((vel[i, t] - vel[j, t]) / w, -b, b)
       if unit_i > 0:
         deliver(i, axis, -sign, -impulse / unit_i, dv, along)
       if unit_j > 0:
         deliver(j, axis, sign, impulse / unit_j, dv, along)
     return dv, along, unit, pushers
 
-  dv, along, unit, pushers = solve(sticking)
-  for k, ((i, j, axis, sign), st, b) in enumerate(zip(links, sticking, budgets)):
-    if not st:
-      continue
+  carried = [0.0] * len(links)  # What a slipped link carries.
+  for r in range(FRICTION_ROUNDS):
+    dv, along, unit, pushers = solve(sticking, carried)
+    if r == FRICTION_ROUNDS - 1:
+      break
 
     def share(q, axis, sign):  # The unit q heads along (axis, sign), per pusher.
       p = pushers(q, axis, sign)
@@ -525,9 +554,20 @@ def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
 
     # The shear moving as one needs: j's unit takes i's change along the link's
     # direction, i's unit j's change along the opposite one.
-    shear = along[(axis, sign)][i] * share(j, axis, sign) - along[(axis, -sign)][j] * share(
-        i, axis, -sign)
-    if abs(shear) > b:
-      sticking[k] = False
-  dv, _, _, _ = solve(sticking)
+    shear, ratio = {}, {}
+    for k, ((i, j, axis, sign), st, b) in enumerate(zip(links, sticking, budgets)):
+      if st:
+        shear[k] = along[(axis, sign)][i] * share(j, axis, sign) - along[(axis, -sign)][
+            j] * share(i, axis, -sign)
+        if abs(shear[k]) > b:
+          ratio[k] = abs(shear[k]) / b if b > 0 else np.inf
+    worst = np.zeros(n)  # Each body's most overloaded slipping link.
+    for k, q in ratio.items():
+      for body in links[k][:2]:
+        worst[body] = max(worst[body], q)
+    for k, q in ratio.items():
+      i, j = links[k][:2]
+      if q >= worst[i] and q >= worst[j]:  # It slips: kinetic friction, out of the units.
+        sticking[k] = False
+        carried[k] = float(np.clip(shear[k], -budgets[k], budgets[k]))
   return vel + dv

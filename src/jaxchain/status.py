@@ -84,9 +84,10 @@ MESSAGES = {
                 "non-positive half-extent, NaN or negative inverse mass or friction, NaN "
                 "gravity); check inputs: accelerations, dt, coordinates far beyond float "
                 "precision, values set inside traced code",
-    DEPTH_EXHAUSTED: "a chain was longer than Config.depth could resolve in the last pass; "
-                     "penetration may be left, or a push, impact or friction not carried "
-                     "through the whole chain (wrong velocities): raise depth (or iterations)",
+    DEPTH_EXHAUSTED: "a chain was longer than Config.depth could resolve in some pass of a "
+                     "step; penetration may be left, or a push, impact or friction not carried "
+                     "through the whole chain (positions or velocities differ from a full-depth "
+                     "step): raise depth",
     FAST_BODY: "a body moved farther in one substep than it and the thinnest body are thick, "
                "so it may have passed through something (raise Config.substeps)",
     LINK_OVERFLOW: "a body had more links in one direction than Config.links keeps; the "
@@ -108,10 +109,11 @@ MESSAGES = {
                      "neighbour table's build and a pass or the sensors that read it; contacts "
                      "may have been missed (re-run Config.for_world on the current world, or "
                      "raise margin or substeps)",
-    PRECISION_LOST: "a body moving faster than 1e-3 units/s moved less in a substep than the "
-                    "float spacing of its coordinate (far from the origin: at x = 1e5 float32 "
-                    "steps by 0.0078), so its motion was rounded away; recentre the world near "
-                    "the origin, or use float64 (jax_enable_x64)",
+    PRECISION_LOST: "a body moving faster than 1e-3 units/s moved less in a substep than 8 "
+                    "float spacings of its coordinate (far from the origin: at x = 1e5 float32 "
+                    "steps by 0.0078), so up to 1/16 of its motion or all of it was rounded "
+                    "away; recentre the world near the origin, or use float64 "
+                    "(jax_enable_x64)",
     FRICTION_OFF: "the World sets friction coefficients > 0 but Config.friction is off: they "
                   "were ignored (use Config.for_world, or friction=True)",
     GRAVITY_OFF: "the World sets gravity on movable bodies but Config.gravity is off: it was "

@@ -96,7 +96,7 @@ class Contacts:
 
 def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
              start: jax.Array | None = None, one_way: OneWay | None = None,
-             surface: jax.Array | None = None) -> Contacts:
+             surface: jax.Array | None = None, walk: jax.Array | None = None) -> Contacts:
   """Contacts of every candidate pair.
 
   The contact axis of a pair that overlapped at `start` (or of every pair, without
@@ -110,7 +110,8 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
   matters. With `one_way` a pair with a one-way member is a contact only when the
   one-way rule admits it, and then along y (`one_way_rule`). With `surface` (and
   `start`), corner contacts next to immovable surfaces take the axis the surface
-  decides (`seam_axis`): no ghost collisions on seams.
+  decides (`seam_axis`): no ghost collisions on seams. With `walk`, the tops of those
+  bodies (immovable one-way ones) are surfaces too for a body standing on them.
 
   Args:
     pos, half: `[2, n, B]`.
@@ -119,6 +120,8 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
     start: optional `[2, n, B]` positions at the start of the step.
     one_way: optional `OneWay`.
     surface: optional `[n, B]` bool, bodies whose faces make surfaces (with `start`).
+    walk: optional `[n, B]` bool, bodies whose tops make surfaces for a body whose
+      bottom is on them (with `surface`).
   """
   n = pos.shape[-2]
   g = cand.gather
@@ -132,9 +135,12 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
     # Apart at the start: not overlapping by more than the skin along some axis (a
     # float32 rounding overlap at a resting contact counts as touching).
     separated = (ox0 <= skin) | (oy0 <= skin)
-    use_y = jnp.where(separated, impact_axis(ox0, oy0, ox, oy, use_y, skin), use_y)
+    level = jnp.abs(ox0) <= skin, jnp.abs(oy0) <= skin
+    use_y = jnp.where(separated, impact_axis(ox0, oy0, ox, oy, use_y, skin, level), use_y)
     if surface is not None:
-      use_y = seam_axis(cand, half, surface, dx0, dy0, ox0, oy0, skin, use_y)
+      near = (ox >= -skin) & (oy >= -skin)  # Could be a link at `pos`.
+      use_y = seam_axis(cand, half, surface, dx0, dy0, ox0, oy0, skin, use_y, walk, near,
+                        level)
     dx, dy = jnp.where(separated, dx0, dx), jnp.where(separated, dy0, dy)
   admitted = vertical = upward = None
   if one_way is not None:
@@ -156,19 +162,23 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
   return Contacts(code=materialise(code), overlap=materialise(o_axis))
 
 
-def impact_axis(ox0, oy0, ox1, oy1, tie, skin: float):
+def impact_axis(ox0, oy0, ox1, oy1, tie, skin: float, level=None):
   """Whether a pair separated at the start met along y: overlaps per axis at the start
   (`ox0`, `oy0`) and now (`ox1`, `oy1`), moving linearly in between.
 
-  A pair whose faces were level along one axis at the start (`|o0| <= skin`: resting
-  on, or sliding along, each other's face) keeps that axis: a box sliding over the
-  seam between two floor tiles rides onto the next tile instead of hitting its side,
-  and one touching a box's side pushes it. Level along both axes (a corner) says
-  nothing by itself (`seam_axis` decides next to surfaces). Otherwise, along each
+  A pair whose faces were level along one axis at the start (`|o0| <= skin`) while
+  overlapping by more than the skin along the other (resting on, or sliding along,
+  each other's face) keeps that axis: a box sliding over the seam between two floor
+  tiles rides onto the next tile instead of hitting its side, and one touching a box's
+  side pushes it. Level along one axis and apart along the other (a body landing with
+  its edge on a seam, or hitting a wall with its bottom on one) goes by the time of
+  impact; level along both axes (a corner) says nothing by itself (`seam_axis` decides
+  next to surfaces). Otherwise, along each
   axis the projections start overlapping at `t = -o0 / (o1 - o0)` of the motion (0 if
   they already overlapped, later than any fraction if they still do not); the boxes
   meet when the later of the two does. Ties take `tie` (the smaller-overlap rule).
-  Gradient-safe: the division is guarded.
+  Gradient-safe: the division is guarded. `level`: optional `(|ox0| <= skin,
+  |oy0| <= skin)`, computed once by the caller.
   """
   def start_time(o0, o1):
     ok = (o1 - o0) > 0
@@ -177,8 +187,12 @@ def impact_axis(ox0, oy0, ox1, oy1, tie, skin: float):
 
   tx, ty = start_time(ox0, ox1), start_time(oy0, oy1)
   by_time = jnp.where(ty == tx, tie, ty > tx)
-  level_x, level_y = jnp.abs(ox0) <= skin, jnp.abs(oy0) <= skin
-  return jnp.where(level_x == level_y, by_time, level_y)
+  # Level along x and overlapping along y (sliding along each other's side), or the
+  # other way round; a pair level along one axis and apart along the other meets at a
+  # corner approach, which the time of impact decides.
+  level_x, level_y = (jnp.abs(ox0) <= skin, jnp.abs(oy0) <= skin) if level is None else level
+  keep_x, keep_y = level_x & (oy0 > skin), level_y & (ox0 > skin)
+  return jnp.where(keep_x | keep_y, keep_y, by_time)
 
 
 def one_way_rule(ref: jax.Array, half: jax.Array, cand: Candidates, ow: OneWay,
@@ -234,32 +248,47 @@ def one_way_rule(ref: jax.Array, half: jax.Array, cand: Candidates, ow: OneWay,
 
 
 def surface_cover(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Array,
-                  dy0: jax.Array, skin: float) -> jax.Array:
+                  dy0: jax.Array, skin: float, walk: jax.Array | None = None) -> jax.Array:
   """`[4, 2, n, B]` bool: entry `(f, c, i)`, the space just outside face f of body i,
   next to the face's corner c (0: on the positive side of the other axis, 1: the
   negative one), lies inside a surface body (read from i's candidates: along the face's
   axis the candidate starts at or before the face plane, within `skin`, and ends beyond
-  it; along the other axis it reaches the corner and extends past it into the face)."""
+  it; along the other axis it reaches the corner and extends past it into the face).
+  A `walk` body (a one-way platform) covers only the space under i's bottom face, and
+  only when its top is level with that face (within `skin`): a one-way top and a solid
+  top at the same height are one surface when walked on."""
   col = lambda k: half[k][None]
   partner = lambda k: cand.gather(half[k])
   ok = cand.mask & cand.gather(surface)
 
   def axis_tests(d, h_i, h_k):
-    face = [(s * d - h_k - h_i <= skin) & (s * d + h_k - h_i > skin) for s in (1.0, -1.0)]
-    corner = [(s * d + h_k - h_i >= -skin) & (s * d - h_k - h_i < -skin) for s in (1.0, -1.0)]
-    return face, corner
+    # Per side s of i (+, -): k's near and far ends past i's face plane.
+    ds = (d, -d)
+    near = [e - h_k - h_i for e in ds]
+    far = [e + h_k - h_i for e in ds]
+    face = [(lo <= skin) & (hi > skin) for lo, hi in zip(near, far)]
+    corner = [(hi >= -skin) & (lo < -skin) for lo, hi in zip(near, far)]
+    return face, corner, near
 
-  face_x, corner_x = axis_tests(dx0, col(0), partner(0))
-  face_y, corner_y = axis_tests(dy0, col(1), partner(1))
+  face_x, corner_x, _ = axis_tests(dx0, col(0), partner(0))
+  face_y, corner_y, near_y = axis_tests(dy0, col(1), partner(1))
   faces = [(face_x[0], corner_y), (face_x[1], corner_y), (face_y[0], corner_x),
            (face_y[1], corner_x)]
-  return jnp.stack([jnp.stack([fold("any", ok & f & c) for c in corners])
+  if walk is not None:  # Under i's bottom: a one-way top level with it.
+    on_top = cand.mask & cand.gather(walk) & (near_y[1] >= -skin)
+    under = face_y[1] & (ok | on_top)
+    faces[3] = (under, corner_x)
+    faces = [(ok & f, c) for f, c in faces[:3]] + [faces[3]]
+  else:
+    faces = [(ok & f, c) for f, c in faces]
+  return jnp.stack([jnp.stack([fold("any", f & c) for c in corners])
                     for f, corners in faces])
 
 
 def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Array,
               dy0: jax.Array, ox0: jax.Array, oy0: jax.Array, skin: float,
-              use_y: jax.Array) -> jax.Array:
+              use_y: jax.Array, walk: jax.Array | None = None,
+              near: jax.Array | None = None, level=None) -> jax.Array:
   """The contact axis of corner contacts next to surfaces (`[W, n, B]` bool: y or not).
 
   Two bodies whose faces were level along both axes at the start meet at a common corner
@@ -269,13 +298,27 @@ def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Ar
   symmetric), the faces beside it are inner sides of that surface: the contact is along
   the other axis. A player whose edge is on the seam between two floor tiles rests on
   the next tile, and one pressed against a wall of tiles with its bottom on a seam
-  slides past the next tile down. Other pairs keep `use_y`. Corner contacts are rare:
-  a batch (`B > 1`) without one skips the rule (`lax.cond`).
+  slides past the next tile down; with `walk` (one-way platforms) a player on a
+  one-way ledge whose edge is on the seam to a flush solid tile runs onto the tile.
+
+  A pair level along one axis and apart (beyond the skin) along the other, i's face
+  level with j's: where the space just outside that face of i, at its end towards j,
+  lies inside a surface body (a one-way one only walked on), i slides along a surface
+  flush with j's face and keeps the level axis (a player sliding over the seam to the
+  next floor tile rides onto it); otherwise the time of impact decides (a body landing
+  with its edge on a floor seam lands, one hitting a wall of tiles with its bottom on a
+  seam hits the wall). Only pairs `near` (overlapping within the skin at the pass's
+  positions) are judged. Other pairs keep `use_y`. Corner and approaching contacts are
+  rare: a batch (`B > 1`) without one skips the rule (`lax.cond`).
   """
-  corner = (jnp.abs(ox0) <= skin) & (jnp.abs(oy0) <= skin)
+  level_x, level_y = (jnp.abs(ox0) <= skin, jnp.abs(oy0) <= skin) if level is None else level
+  corner = level_x & level_y
+  approach = (level_x & (oy0 < -skin)) | (level_y & (ox0 < -skin))
+  if near is not None:
+    approach = approach & near
 
   def rule(use_y):
-    cover = surface_cover(cand, half, surface, dx0, dy0, skin)
+    cover = surface_cover(cand, half, surface, dx0, dy0, skin, walk)
     own, other = cover[:, :, None], cand.gather(cover)  # [4, 2, (1 or W), n, B]
     sx, sy = dx0 > 0, dy0 > 0  # j's side of i along each axis.
 
@@ -283,13 +326,18 @@ def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Ar
       at = lambda f: jnp.where(corner_sign, c[f, 0], c[f, 1])
       return jnp.where(face_sign, at(pos_face), at(neg_face))
 
-    beside_x = pick(own, 2, 3, sy, sx) | pick(other, 0, 1, ~sx, ~sy)
-    beside_y = pick(own, 0, 1, sx, sy) | pick(other, 2, 3, ~sy, ~sx)
+    own_y, own_x = pick(own, 2, 3, sy, sx), pick(own, 0, 1, sx, sy)
+    beside_x = own_y | pick(other, 0, 1, ~sx, ~sy)
+    beside_y = own_x | pick(other, 2, 3, ~sy, ~sx)
+    # Approaching j's corner: i's level face at its end towards j lies on a surface.
+    flush = jnp.where(level_y, own_y, own_x)
+    use_y = jnp.where(approach & flush, level_y, use_y)
     return jnp.where(corner & (beside_x != beside_y), beside_x, use_y)
 
   if use_y.shape[-1] == 1:  # One world: nothing to skip for the rest of a batch.
     return rule(use_y)
-  return lax.cond(jnp.any(any_world(corner & cand.mask)), rule, lambda u: u, use_y)
+  return lax.cond(jnp.any(any_world((corner | approach) & cand.mask)), rule, lambda u: u,
+                  use_y)
 
 
 @jax.tree_util.register_dataclass

@@ -27,6 +27,10 @@ STICK = 1e-3
 # slide past each other faster than this: float rounding of a sideways velocity
 # neither makes friction act nor splits a body's mass among its neighbours.
 SLIP = 1e-6
+# Solves of the friction impulses per pass: the first on the chain's units, each later
+# one after a holding test dropped the links that slip (`friction`): up to two slip
+# rounds.
+ROUNDS = 3
 
 
 def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array,
@@ -43,9 +47,15 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
 
   Friction acts per link: a unit moves as one only through links whose own Coulomb
   budget holds the shear that moving as one needs (`holding`). The impulses are solved
-  once on the units the chain built; a sticking link that would need more shear than
-  its budget slips, and the impulses are solved again on the units without it. So a
-  frictionless box on a sliding stack keeps sliding.
+  on the units the chain built, then a holding test: of the sticking links that would
+  need more shear than their budget, each body's most overloaded one (largest need
+  over budget, a frictionless link first) slips, carries its budget the way it was
+  needed (kinetic friction) and leaves the units, and the impulses are solved again:
+  `ROUNDS` solves, up to `ROUNDS - 1` slip rounds, each run only where the last one
+  dropped a link (a batch skips it where no world did). So a frictionless box on a
+  sliding stack keeps sliding, the box under it is held by its own link, and a link
+  never carries more than its budget once another has slipped. A link found slipping
+  only after the last round keeps the units of that round.
 
   Args:
     vel: `[2, n, B]` velocities after the normal impulses.
@@ -73,15 +83,15 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   movable = fold("any", shared > 0)[None]
   k = jnp.broadcast_to(jnp.sum(rubbing, axis=(0, 1)).astype(dtype), tangent.shape)
 
-  def solve(shared, sticking):
-    """Impulses on the units `shared`. Returns `(impulse, total, count)`: `total` is each
-    body's tangential velocity change as part of its unit along each direction, `count`
-    its sticking pushers along it."""
+  def solve(shared, sticking, slip):
+    """Impulses on the units `shared`, the slipped links carrying `slip`. Returns
+    `(impulse, total, count)`: `total` is each body's tangential velocity change as part
+    of its unit along each direction, `count` its sticking pushers along it."""
     unit_i = opposite(shared)  # At (d, i): i's unit along e.
     inv_i = safe_divide(k, unit_i)
     inv_j = f.front(safe_divide(k, shared))
     stop = jnp.clip(safe_divide(sliding, inv_i[None] + inv_j), -budget, budget)
-    impulse = jnp.where(rubbing, stop, 0.0)
+    impulse = jnp.where(rubbing & (slip == 0), stop, slip)
     source = opposite(safe_divide(-jnp.sum(impulse, axis=0), unit_i))  # At (e, i).
     carries = opposite(sticking, 1)  # Rows of the reversed table, sticking.
     count = jnp.sum(carries, axis=0).astype(dtype)
@@ -93,21 +103,42 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
     total = chain.repeat(hop, jnp.where(movable, source, 0.0), depth, converge)
     return impulse, total, count
 
-  def rounds(k, carry):
-    """Round 0 solves on the chain's units and drops the links that slip from them;
-    round 1 solves again on the units without them (one copy of `solve`'s code)."""
-    shared, sticking, _, _ = carry
-    impulse, total, count = solve(shared, sticking)
+  def drop(shared, sticking, slip, total, count):
+    """The holding test: each body's most overloaded slipping link leaves the units and
+    carries its budget. Returns the new `(shared, sticking, slip)` and `[B]` whether a
+    world dropped a link."""
+    need = holding(f, total, shared, count)
+    over = sticking & (jnp.abs(need) > budget)
+    ratio = jnp.where(over, safe_divide(jnp.abs(need), budget, jnp.inf), 0.0)
+    worst = fold("max", ratio, 2)  # [n, B]: each body's most overloaded link.
+    dropped = over & (ratio >= worst[None, None]) & (ratio >= f.bodies(worst))
+    slip = jnp.where(dropped, jnp.clip(need, -budget, budget), slip)
+    holds = sticking & ~dropped
+    return units(f, mass, holds, depth, converge), holds, slip, any_world(dropped)
 
-    def without_slipping(_):
-      holds = sticking & (jnp.abs(holding(f, total, shared, count)) <= budget)
-      return units(f, mass, holds, depth, converge), holds
+  # Round 0 on the chain's units, then the slip rounds: each solves again on the units
+  # the last holding test left, where it dropped a link, and (but the last) tests again.
+  slip = jnp.zeros_like(budget)
+  impulse, total, count = solve(shared, sticking, slip)
+  carry = drop(shared, sticking, slip, total, count) + (impulse, total)
 
-    shared, sticking = lax.cond(k == 0, without_slipping, lambda _: (shared, sticking), None)
-    return shared, sticking, impulse, total
+  def later(carry, last: bool):
+    shared, sticking, slip, again, impulse, total = carry
 
-  init = (shared, sticking, jnp.zeros_like(budget), jnp.zeros_like(tangent))
-  _, _, impulse, total = lax.fori_loop(0, 2, rounds, init)
+    def work():
+      impulse, total, count = solve(shared, sticking, slip)
+      if last:
+        return shared, sticking, slip, jnp.zeros_like(again), impulse, total
+      return drop(shared, sticking, slip, total, count) + (impulse, total)
+
+    if again.shape[-1] == 1:  # One world: every round (nothing to skip for a batch).
+      return work()
+    return lax.cond(jnp.any(again), work,
+                    lambda: (shared, sticking, slip, jnp.zeros_like(again), impulse, total))
+
+  for r in range(1, ROUNDS):
+    carry = later(carry, last=r == ROUNDS - 1)
+  *_, impulse, total = carry
   # Units along x (e = 0, 1) slide along y, units along y along x.
   change = jnp.stack([total[2] + total[3], total[0] + total[1]])
   scale = chain.energy_scale(vel, change, impulse, f, mass, mass == 0, tangent)

@@ -29,8 +29,9 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
 
   Returns:
     `(pos, vel, status [B], crushed [n, B], touching [4, n, B])` (`vel` None without
-    `vel`; `touching` ORed over the passes). `DEPTH_EXHAUSTED` comes from the last pass
-    (earlier passes may leave work that later ones finish).
+    `vel`; `touching` ORed over the passes). `DEPTH_EXHAUSTED` is that of every pass: a
+    later pass redoes the positions an earlier one cut short, not the velocities, and
+    starts from other positions than a full-depth pass would have left.
   """
   n, B = bodies.shape
   mass = chain.body_mass(bodies.inv_mass, bodies.active)
@@ -41,9 +42,11 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
                               solid=bodies.fixed & ~bodies.one_way)
   # Seams: the faces of immovable bodies make surfaces (one-way bodies excepted; sensors
   # are out of every candidate table already).
-  surface = None
+  surface = walk = None
   if config.immovable and start is not None:
     surface = bodies.fixed & ~bodies.one_way if config.one_way else bodies.fixed
+    if config.one_way:  # One-way tops are surfaces when walked on.
+      walk = bodies.fixed & bodies.one_way
   table = pairs.build(pos, bodies, config, start) if table is None else table
 
   def resolve(f, p, v):
@@ -66,11 +69,11 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
     return p + out.disp, v, scaled, exhausted, out.crushed
 
   def one_pass(_, carry):
-    p, v, code, _, crushed, touching = carry
+    p, v, code, cut, crushed, touching = carry
     cand, found = pairs.candidates(p, bodies, config, table)
     cand = contacts.admit(cand, bodies, layers=config.layers, sensors=config.sensors)
     ow = one_way if one_way is None or v is None else dataclasses.replace(one_way, vel=v)
-    c = contacts.contacts(p, bodies.half, cand, config.skin, start, ow, surface)
+    c = contacts.contacts(p, bodies.half, cand, config.skin, start, ow, surface, walk)
     f, overflow = contacts.link_table(c, cand, config.links, rows=movable)
     if f.slots > 1 and f.idx is not None and B > 1:
       # Link slots that cost what the batch needs: a settled room has at most one link
@@ -84,7 +87,7 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
       new_p, v, scaled, exhausted, hit = resolve(f, p, v)
     code = (code | found | flags.bit(overflow, status.LINK_OVERFLOW)
             | flags.bit(scaled, status.IMPULSES_SCALED))
-    return new_p, v, code, exhausted, crushed | hit, touching | contacts.touching(f)
+    return new_p, v, code, cut | exhausted, crushed | hit, touching | contacts.touching(f)
 
   init = (pos, vel, jnp.zeros((B,), jnp.int32), jnp.zeros((B,), bool), jnp.zeros((n, B), bool),
           jnp.zeros((NUM_DIRECTIONS, n, B), bool))
@@ -123,7 +126,6 @@ def substep(state: State, bodies: Bodies, config, sub_dt: float,
     vel = vel + jnp.where(movable, bodies.gravity[:, None, :] * sub_dt, 0.0)
   code = flags.too_fast(bodies, vel, sub_dt)
   motion = jnp.where(active, vel * sub_dt, 0.0)
-  code = code | flags.motion_lost(pos, vel, motion)
   # pos + motion, written to round as XLA:CPU rounds the [n, 2] layout of the previous
   # core (one fused multiply-add along x, two roundings along y): bit-identical results
   # while both exist.
@@ -134,7 +136,8 @@ def substep(state: State, bodies: Bodies, config, sub_dt: float,
                                           table=table)
   # Sensors see every overlap during the step: swept over this substep's motion.
   sensed, seen = sensors(bodies, p, config, table, start=pos)
-  code = code | found | seen | flags.finite(bodies, p, v) | crushed_bit(crushed)
+  code = (code | found | seen | flags.finite(bodies, p, v) | crushed_bit(crushed)
+          | flags.motion_lost(bodies, pos, p, v, sub_dt))
   return State(pos=p, vel=v, status=state.status | code, touching=state.touching | touching,
                crushed=state.crushed | crushed, sensed=state.sensed | sensed)
 
