@@ -103,42 +103,38 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
     total = chain.repeat(hop, jnp.where(movable, source, 0.0), depth, converge)
     return impulse, total, count
 
-  def drop(shared, sticking, slip, total, count):
+  def test(sticking, slip, total, shared, count):
     """The holding test: each body's most overloaded slipping link leaves the units and
-    carries its budget. Returns the new `(shared, sticking, slip)` and `[B]` whether a
-    world dropped a link."""
+    carries its budget. Returns the new `(sticking, slip)` and `[B]` whether a world
+    dropped a link."""
     need = holding(f, total, shared, count)
     over = sticking & (jnp.abs(need) > budget)
     ratio = jnp.where(over, safe_divide(jnp.abs(need), budget, jnp.inf), 0.0)
     worst = fold("max", ratio, 2)  # [n, B]: each body's most overloaded link.
     dropped = over & (ratio >= worst[None, None]) & (ratio >= f.bodies(worst))
     slip = jnp.where(dropped, jnp.clip(need, -budget, budget), slip)
-    holds = sticking & ~dropped
-    return units(f, mass, holds, depth, converge), holds, slip, any_world(dropped)
+    return sticking & ~dropped, slip, any_world(dropped)
 
-  # Round 0 on the chain's units, then the slip rounds: each solves again on the units
-  # the last holding test left, where it dropped a link, and (but the last) tests again.
-  slip = jnp.zeros_like(budget)
-  impulse, total, count = solve(shared, sticking, slip)
-  carry = drop(shared, sticking, slip, total, count) + (impulse, total)
+  # Round 0 solves on the chain's units; each slip round tests the last solve, and
+  # where a world dropped a link solves again on the units without it (a batch skips
+  # the solve where no world did). The slip rounds are one loop: one copy of their code.
+  impulse, total, count = solve(shared, sticking, jnp.zeros_like(budget))
 
-  def later(carry, last: bool):
-    shared, sticking, slip, again, impulse, total = carry
+  def slip_round(_, carry):
+    sticking, slip, impulse, total, count, shared = carry
+    held, slip, again = test(sticking, slip, total, shared, count)
 
     def work():
-      impulse, total, count = solve(shared, sticking, slip)
-      if last:
-        return shared, sticking, slip, jnp.zeros_like(again), impulse, total
-      return drop(shared, sticking, slip, total, count) + (impulse, total)
+      units_now = units(f, mass, held, depth, converge)
+      return (held, slip) + solve(units_now, held, slip) + (units_now,)
 
     if again.shape[-1] == 1:  # One world: every round (nothing to skip for a batch).
       return work()
-    return lax.cond(jnp.any(again), work,
-                    lambda: (shared, sticking, slip, jnp.zeros_like(again), impulse, total))
+    return lax.cond(jnp.any(again), work, lambda: carry)
 
-  for r in range(1, ROUNDS):
-    carry = later(carry, last=r == ROUNDS - 1)
-  *_, impulse, total = carry
+  carry = (sticking, jnp.zeros_like(budget), impulse, total, count, shared)
+  carry = lax.fori_loop(1, ROUNDS, slip_round, carry)
+  _, _, impulse, total, _, _ = carry
   # Units along x (e = 0, 1) slide along y, units along y along x.
   change = jnp.stack([total[2] + total[3], total[0] + total[1]])
   scale = chain.energy_scale(vel, change, impulse, f, mass, mass == 0, tangent)
