@@ -104,7 +104,7 @@ def test_gymnax_step_is_jaxchains_step(gymnax_pair):
   b = 2
   keys = jax.random.split(jax.random.key(0), b)
   obs_g, state_g = jax.vmap(genv.reset, in_axes=(0, None))(keys, params)
-  obs_j, state_j = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
+  obs_j, state_j = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(keys, params)
   np.testing.assert_array_equal(obs_g, obs_j)
   step_g = jax.jit(jax.vmap(genv.step, in_axes=(0, 0, 0, None)))
   step_j = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
@@ -140,10 +140,10 @@ def test_gymnax_transition_gradients(gymnax_pair):
     return obs[2]  # The player's x velocity.
 
   a = jnp.array([0.5, 0.0], jnp.float32)
-  assert float(jax.grad(lambda a: speed(genv, a))(a)[0]) == 0.0
+  assert float(jax.jit(jax.grad(lambda a: speed(genv, a)))(a)[0]) == 0.0
   live = genv.with_transition_gradients()
   assert live.transition_gradients_enabled and not genv.transition_gradients_enabled
-  assert float(jax.grad(lambda a: speed(live, a))(a)[0]) > 0.0
+  assert float(jax.jit(jax.grad(lambda a: speed(live, a)))(a)[0]) > 0.0
 
 
 def test_gymnax_register_and_make():
@@ -230,7 +230,7 @@ def test_vector_env_is_the_vmapped_step(vector_pair):
   split = jax.vmap(jax.random.split)
   pair = split(jnp.stack([jax.random.key(5 + i) for i in range(3)]))
   keys = pair[:, 0]
-  ref_obs, ref_state = jax.vmap(env.reset, in_axes=(0, None))(pair[:, 1], params)
+  ref_obs, ref_state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(pair[:, 1], params)
   np.testing.assert_array_equal(obs, ref_obs)
   step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
   for t in range(MAX_STEPS):
