@@ -5,9 +5,6 @@ the vector adapters: one jitted, vmapped step for every env).
 
 from __future__ import annotations
 
-import uuid
-import weakref
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -31,32 +28,6 @@ def _make(env, params, kwargs):
   if kwargs:
     raise TypeError(f"make keywords {sorted(kwargs)} need a task name, not a built env")
   return env, (env.default_params if params is None else params)
-
-
-class _Programs:
-  """The jitted functions of one adapter (a tuple in `fns`); weakly held by `_PROGRAMS`."""
-
-  __slots__ = ("fns", "__weakref__")
-
-  def __init__(self, fns: tuple):
-    self.fns = fns
-
-
-# Jitted functions by a token the adapter that built them carries in its pickled state:
-# its copies (`copy.deepcopy`, pickle in this process) hold the same env, so they use
-# the same jitted functions, compiled once, instead of each copy compiling its own.
-# Kept while some adapter holds them; elsewhere (another process) the copy builds its own.
-_PROGRAMS: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
-
-
-def _shared_programs(token: str | None, build) -> tuple[str, _Programs]:
-  """`(token, programs)`: those `token` names if still alive, else `build()` (a tuple
-  of jitted functions) under a new token."""
-  programs = None if token is None else _PROGRAMS.get(token)
-  if programs is None:
-    token, programs = uuid.uuid4().hex, _Programs(build())
-    _PROGRAMS[token] = programs
-  return token, programs
 
 
 # Distributions of modules whose pip name differs from their import name.
@@ -210,12 +181,11 @@ class _Batched:
   `DummyVecEnv` and Gymnasium's `SyncVectorEnv` over single envs give the same
   episodes; observations agree to an ulp of `t / max_steps`, which the vmapped step
   rounds differently on some steps). Seeds are `_check_seed`'s: ints >= 0 of any size.
-  Pickle and `copy.deepcopy` carry the env, params, keys and state; a copy made in this
-  process uses the original's jitted functions (`_shared_programs`: compiled once), one
-  unpickled elsewhere builds its own.
+  The jitted functions are rebuilt after unpickling (pickle and `copy.deepcopy` carry
+  the env, params, keys and state).
   """
 
-  _JITTED = ("_programs", "_reset_fn", "_step_fn", "_render_fn")
+  _JITTED = ("_reset_fn", "_step_fn", "_render_fn")
   # Per-env attributes the adapter holds itself (the rest come from the jaxchain env);
   # and those `set_attr` may change (for every env at once: they share one step).
   _OWN = ("env", "params", "render_mode")
@@ -250,11 +220,9 @@ class _Batched:
           pair[:, 1], state, action, params)
       return pair[:, 0], obs, state, reward, done, info
 
-    # Shared with the copies of this adapter made in this process: compiled once.
-    self._programs_token, self._programs = _shared_programs(
-        getattr(self, "_programs_token", None),
-        lambda: (jax.jit(reset), jax.jit(step), jax.jit(env.render)))
-    self._reset_fn, self._step_fn, self._render_fn = self._programs.fns
+    self._reset_fn = jax.jit(reset)
+    self._step_fn = jax.jit(step)
+    self._render_fn = jax.jit(env.render)
 
   def __getstate__(self) -> dict:
     return {k: v for k, v in self.__dict__.items() if k not in self._JITTED}

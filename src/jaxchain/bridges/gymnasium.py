@@ -13,7 +13,7 @@ from jaxchain import env as env_lib
 from jaxchain.bridges.common import (GYMNASIUM_IDS, _SINGLE_METADATA, _as_action, _Batched,
                                      _check_render_mode, _check_seed, _gym_space, _host_info,
                                      _make, _missing, _public, _reset_key, _seed_list,
-                                     _shared_programs, _step_key)
+                                     _step_key)
 
 
 @functools.cache
@@ -45,7 +45,7 @@ def _gymnasium_classes():
     """
 
     metadata = dict(_SINGLE_METADATA)
-    _JITTED = ("_programs", "_reset", "_step", "_render")
+    _JITTED = ("_reset", "_step", "_render")
 
     def __init__(self, env, params=None, render_mode: str | None = None, **make_kwargs):
       self.env, self.params = _make(env, params, make_kwargs)
@@ -60,12 +60,9 @@ def _gymnasium_classes():
       self._build()
 
     def _build(self):
-      # Shared with the copies of this env made in this process: compiled once.
-      env = self.env
-      self._programs_token, self._programs = _shared_programs(
-          getattr(self, "_programs_token", None),
-          lambda: (jax.jit(env.reset), jax.jit(env.step_env), jax.jit(env.render)))
-      self._reset, self._step, self._render = self._programs.fns
+      self._reset = jax.jit(self.env.reset)
+      self._step = jax.jit(self.env.step_env)
+      self._render = jax.jit(self.env.render)
 
     def __getstate__(self) -> dict:
       return {k: v for k, v in self.__dict__.items() if k not in self._JITTED}
