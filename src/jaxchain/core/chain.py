@@ -78,31 +78,6 @@ def repeat(hop, init, times: int, converge: bool = False, check: bool = False):
   return out, diff
 
 
-@jax.custom_jvp
-def push_max(x: jax.Array) -> jax.Array:
-  """`max(0, max over axis 0 of x)`, the max-plus push over a body's pushers, whose
-  derivative is one piece's at every tie: that of the first largest entry, and 0 where
-  the largest is 0 (nothing pushes: a resting contact at a tie is the piece in which it
-  does not push). `jnp.max` would split the cotangent among tied entries, a mixture of
-  pieces (issue 29 item 5: two touching boxes at rest gave 1/8 of the pushing piece)."""
-  return jnp.max(x, axis=0, initial=0.0)
-
-
-@push_max.defjvp
-def _push_max_jvp(primals, tangents):
-  (x,), (t,) = primals, tangents
-  m = push_max(x)
-  top = x == m[None]
-  first = top & (jnp.cumsum(top.astype(jnp.int32), axis=0) == 1)
-  return m, jnp.where(m > 0, jnp.sum(jnp.where(first, t, 0.0), axis=0), 0.0)
-
-
-def positive(x: jax.Array) -> jax.Array:
-  """`max(x, 0)` whose derivative at 0 is that of the 0 piece (`jnp.maximum` gives
-  half of each)."""
-  return jnp.where(x > 0, x, 0.0)
-
-
 def body_mass(inv_mass: jax.Array, active: jax.Array) -> jax.Array:
   """`[n, B]` mass of active movable bodies, 0 for immovable or padding ones."""
   return jnp.where(active, safe_divide(1.0, inv_mass), 0.0)
@@ -199,7 +174,7 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   # one behind it (M_e(i)), j's the one in front of j (M_d(j)).
   mass_i, leans_i = opposite(unit)[None], opposite(leans)[None]
   mass_j, leans_j = f.front(unit), f.front(leans)
-  depth_now = jnp.where(f.mask, positive(f.overlap), 0.0)
+  depth_now = jnp.where(f.mask, jnp.maximum(f.overlap, 0.0), 0.0)
   carries = depth_now > 0
   if vel is not None:
     m_dir = along(vel[0], vel[1])
@@ -227,7 +202,7 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   def push_hop(disps):
     out = []
     for disp, share in zip(disps, shares):
-      pushed = push_max(jnp.where(f.back_mask, f.back(disp) + share, 0.0))
+      pushed = jnp.max(jnp.where(f.back_mask, f.back(disp) + share, 0.0), axis=0, initial=0.0)
       out.append(jnp.where(movable[None], pushed, 0.0))
     return tuple(out)
 
@@ -235,7 +210,7 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   disps, pushed_on = repeat(push_hop, (zero,) * len(shares), depth + 1, converge, check=True)
   push_short = any_world(jnp.stack(pushed_on))
   exhausted = backing_short | push_short  # Bools: no gradient to stop.
-  disp = jnp.where(movable[None], jnp.where(crush_push > disps[0], crush_push, disps[0]), 0.0)
+  disp = jnp.where(movable[None], jnp.maximum(disps[0], crush_push), 0.0)
   net = jnp.stack([disp[0] - disp[1], disp[2] - disp[3]])
   if vel is None:
     B = mass.shape[-1]
@@ -271,7 +246,7 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
     c = velocity_change(lam)
     v_dir = along(vel[0] + c[0], vel[1] + c[1])
     closing = v_dir[None] - f.front(v_dir)
-    return jnp.where(free, positive(lam + safe_divide(closing, stiffness)), 0.0)
+    return jnp.where(free, jnp.maximum(lam + safe_divide(closing, stiffness), 0.0), 0.0)
 
   lam = lax.fori_loop(0, REFINE, refine, impulse)
   change = velocity_change(lam)
@@ -350,11 +325,11 @@ def link_impulses(change: jax.Array, f: Links, mass: jax.Array, leans: jax.Array
   r = q * split  # Momentum per pusher.
   r_j, r_i = f.front(r), opposite(r)[None]
   leans_j, leans_i = f.front(leans), opposite(leans)[None]
-  estimate = jnp.where(leans_j, r_i, jnp.where(leans_i, r_j, jnp.where(r_j <= r_i, r_j, r_i)))
+  estimate = jnp.where(leans_j, r_i, jnp.where(leans_i, r_j, jnp.minimum(r_j, r_i)))
   agree = leans_j | leans_i | (jnp.abs(r_j - r_i) <= 1e-5 * jnp.maximum(jnp.abs(r_j), jnp.abs(r_i)))
   tree = fold("all", agree | ~f.mask, 2)
   cut = f.mask & ~jammed & (f.front(q_short) | opposite(q_short)[None])
-  return (jnp.where(f.mask & ~jammed, positive(estimate), 0.0), units, tree,
+  return (jnp.where(f.mask & ~jammed, jnp.maximum(estimate, 0.0), 0.0), units, tree,
           any_world(cut))
 
 
