@@ -18,6 +18,7 @@ set here rather than in pyproject's `addopts`, because `-n` in `addopts` turns
 get the same XLA flag, and tests' subprocesses inherit it from the environment.
 """
 
+import gc
 import os
 
 OPT_FLAG = "--xla_backend_optimization_level=0"
@@ -90,3 +91,21 @@ def pytest_xdist_auto_num_workers(config):
 @pytest.fixture(autouse=True)
 def _float32_default():
   assert not jax.config.jax_enable_x64, "the suite runs in float32; x64 tests use a subprocess"
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_programs():
+  """After each module, drop every program JAX has compiled (`jax.clear_caches`).
+
+  XLA:CPU loads each kernel it compiles as its own object, with three memory maps (code,
+  read-only data, data), and Linux gives a process at most `vm.max_map_count` maps
+  (65,530 by default). One jitted step is about 150 kernels, so a long-lived worker that
+  keeps every program of the modules it ran (module-level `jax.jit`s keep theirs in JAX's
+  caches) passes that limit after a few hundred steps, and the next compile segfaults
+  inside XLA (seen at 76% of a full run, in `backend_compile_and_load`). A module then
+  starts with no compiled programs, whatever ran before it on its worker (so its compile
+  count no longer depends on which modules ran before it there).
+  """
+  yield
+  jax.clear_caches()
+  gc.collect()
