@@ -1,13 +1,16 @@
 """Strict tests, lenient library: promotion errors surface here, never in users' code.
 
-The suite compiles with LLVM at -O0 (`--xla_backend_optimization_level=0`, set here
-before JAX starts its backend, and inherited by the tests' subprocesses): XLA's own
-HLO passes (fusion, layout, the partitioner) run as always, only the machine-code
-optimisation is skipped. The suite is compile-bound, and this cuts its time by about a
-third (measured on test_golden, test_stepping and test_links: 411 s -> 293 s). Users and
-the benchmarks run at the default level; `tests/test_golden.py` replays a golden scene
-at the default level too (`test_same_answers_at_the_default_optimisation_level`), so a
-miscompile there (jax-ml/jax#39103 was one) still fails the suite.
+The suite compiles with two XLA:CPU flags (`SUITE_XLA_FLAGS`, set here before JAX starts
+its backend, and inherited by the tests' subprocesses). XLA's own HLO passes (fusion,
+layout, the partitioner) run as always; only the code generation differs:
+- LLVM at -O0 (`--xla_backend_optimization_level=0`): the machine-code optimisation is
+  skipped (test_golden, test_stepping and test_links: 411 s -> 293 s).
+- XLA's older loop emitters for fused kernels (`--xla_cpu_use_fusion_emitters=false`)
+  instead of the MLIR fusion emitters: test_stepping 161 -> 87 CPU s on top of -O0. Each
+  kernel compiles faster and runs slower, and the suite is compile-bound.
+Users and the benchmarks run at XLA's defaults; `tests/test_golden.py` replays a golden
+scene with neither flag (`test_same_answers_at_the_default_optimisation_level`), so a
+miscompile at the defaults (jax-ml/jax#39103 was one) still fails the suite.
 
 `pytest`, typed as written, runs on pytest-xdist workers (`pytest_cmdline_main` below):
 one per core, at most `MAX_WORKERS`, with `--dist loadfile`, so a module's tests share
@@ -15,15 +18,16 @@ one worker's compiled functions and module fixtures. `-n N` / `--dist MODE` on t
 command line win; `-n 0` or `-p no:xdist` runs in this one process. (The defaults are
 set here rather than in pyproject's `addopts`, because `-n` in `addopts` turns
 `pytest -p no:xdist` into a usage error.) The workers import this file too, so they
-get the same XLA flag, and tests' subprocesses inherit it from the environment.
+get the same XLA flags, and tests' subprocesses inherit it from the environment.
 """
 
 import gc
 import os
 
-OPT_FLAG = "--xla_backend_optimization_level=0"
-if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-  os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {OPT_FLAG}".strip()
+SUITE_XLA_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
+for _flag in SUITE_XLA_FLAGS:  # A flag the caller set keeps the caller's value.
+  if _flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}".strip()
 
 import jax  # noqa: E402 - after XLA_FLAGS.
 import pytest

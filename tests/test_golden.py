@@ -35,10 +35,12 @@ def test_stored_scenes_move():
 
 
 def test_same_answers_at_the_default_optimisation_level():
-  """The demo's scene replayed in a subprocess compiled at XLA's default LLVM level (the
-  suite compiles at -O0, see conftest.py): the bits users get match the stored ones."""
+  """The demo's scene replayed in a subprocess compiled with XLA's defaults (the suite
+  compiles at -O0 without fusion emitters, see conftest.py): the bits users get match the
+  stored ones."""
+  suite_only = ["--xla_backend_optimization_level", "--xla_cpu_use_fusion_emitters"]  # conftest's.
   flags = " ".join(f for f in os.environ.get("XLA_FLAGS", "").split()
-                   if "xla_backend_optimization_level" not in f)
+                   if f.split("=")[0] not in suite_only)
   code = textwrap.dedent(f"""
       import importlib.util, numpy as np
       spec = importlib.util.spec_from_file_location("make_golden", {str(DATA / "make_golden.py")!r})
