@@ -22,6 +22,12 @@ TOL = {
 
 CAPACITY = 24  # Every equivalence scene is padded to this many bodies: one compile.
 
+# `compiler_options` for a program whose time goes to running it, not compiling it: the
+# suite's codegen (tests/conftest.py: LLVM -O0, no fusion emitters) compiles fast and runs
+# 4-5x slower, so a long rollout pays more than it saves (test_gradients' stiff scenes:
+# compile 2.5 s + run 17.4 s at the suite's flags, 5.2 s + 3.7 s with these).
+RUN_BOUND = {"xla_backend_optimization_level": 1}
+
 # Configs shared across modules so compiled functions are reused.
 DEEP = jc.Config(depth=24, gravity=False)
 

@@ -12,6 +12,7 @@ from jax.test_util import check_grads
 
 import jaxchain as jc
 from jaxchain import scenes
+from tests.helpers import RUN_BOUND
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -73,7 +74,8 @@ def stiff_grads():
     final, traj = jc.rollout(world.replace(pos=pos, vel=vel), cfg, 20)
     return jnp.sum(traj.pos[:, :, 1]) + jnp.sum(final.vel**2)
 
-  grads = jax.jit(jax.vmap(jax.grad(loss, argnums=(1, 2))))(batch, batch.pos, batch.vel)
+  grads = jax.jit(jax.vmap(jax.grad(loss, argnums=(1, 2))), compiler_options=RUN_BOUND)(
+      batch, batch.pos, batch.vel)
   return {k: [np.asarray(g[b]) for g in grads] for b, k in enumerate(names)}
 
 
