@@ -1,15 +1,20 @@
 """Strict tests, lenient library: promotion errors surface here, never in users' code.
 
-The suite compiles with two XLA:CPU flags (`SUITE_XLA_FLAGS`, set here before JAX starts
+The suite compiles with three XLA:CPU flags (`SUITE_XLA_FLAGS`, set here before JAX starts
 its backend, and inherited by the tests' subprocesses). XLA's own HLO passes (fusion,
 layout, the partitioner) run as always; only the code generation differs:
 - LLVM at -O0 (`--xla_backend_optimization_level=0`): the machine-code optimisation is
   skipped (test_golden, test_stepping and test_links: 411 s -> 293 s).
 - XLA's older loop emitters for fused kernels (`--xla_cpu_use_fusion_emitters=false`)
-  instead of the MLIR fusion emitters: test_stepping 161 -> 87 CPU s on top of -O0. Each
-  kernel compiles faster and runs slower, and the suite is compile-bound.
+  instead of the MLIR fusion emitters: test_stepping 161 -> 87 CPU s on top of -O0 (a full
+  run: 843 -> 495 s wall). Each kernel compiles faster and runs slower, and the suite is
+  compile-bound.
+- One LLVM module per program (`--xla_cpu_parallel_codegen_split_count=1`) instead of
+  parts compiled on parallel threads: less CPU in all, and the suite keeps both cores busy
+  with its own workers (a full run: 879 -> 804 CPU s, 474 -> 433 s wall).
+A test whose program runs long compiles it at -O1 (`tests.helpers.RUN_BOUND`).
 Users and the benchmarks run at XLA's defaults; `tests/test_golden.py` replays a golden
-scene with neither flag (`test_same_answers_at_the_default_optimisation_level`), so a
+scene with none of them (`test_same_answers_at_the_default_optimisation_level`), so a
 miscompile at the defaults (jax-ml/jax#39103 was one) still fails the suite.
 
 `pytest`, typed as written, runs on pytest-xdist workers (`pytest_cmdline_main` below):
@@ -24,7 +29,8 @@ get the same XLA flags, and tests' subprocesses inherit it from the environment.
 import gc
 import os
 
-SUITE_XLA_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
+SUITE_XLA_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false",
+                   "--xla_cpu_parallel_codegen_split_count=1")
 for _flag in SUITE_XLA_FLAGS:  # A flag the caller set keeps the caller's value.
   if _flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}".strip()

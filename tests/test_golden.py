@@ -36,9 +36,10 @@ def test_stored_scenes_move():
 
 def test_same_answers_at_the_default_optimisation_level():
   """The demo's scene replayed in a subprocess compiled with XLA's defaults (the suite
-  compiles at -O0 without fusion emitters, see conftest.py): the bits users get match the
+  compiles with faster codegen, see conftest.py): the bits users get match the
   stored ones."""
-  suite_only = ["--xla_backend_optimization_level", "--xla_cpu_use_fusion_emitters"]  # conftest's.
+  suite_only = ["--xla_backend_optimization_level", "--xla_cpu_use_fusion_emitters",
+                "--xla_cpu_parallel_codegen_split_count"]  # tests/conftest.py's SUITE_XLA_FLAGS.
   flags = " ".join(f for f in os.environ.get("XLA_FLAGS", "").split()
                    if f.split("=")[0] not in suite_only)
   code = textwrap.dedent(f"""
