@@ -1,6 +1,6 @@
 """Strict tests, lenient library: promotion errors surface here, never in users' code.
 
-The suite compiles with three XLA:CPU flags (`SUITE_XLA_FLAGS`, set here before JAX starts
+The suite compiles with three XLA:CPU flags (`tests/xla_flags.py`, set here before JAX starts
 its backend, and inherited by the tests' subprocesses). XLA's own HLO passes (fusion,
 layout, the partitioner) run as always; only the code generation differs:
 - LLVM at -O0 (`--xla_backend_optimization_level=0`): the machine-code optimisation is
@@ -23,14 +23,14 @@ one worker's compiled functions and module fixtures. `-n N` / `--dist MODE` on t
 command line win; `-n 0` or `-p no:xdist` runs in this one process. (The defaults are
 set here rather than in pyproject's `addopts`, because `-n` in `addopts` turns
 `pytest -p no:xdist` into a usage error.) The workers import this file too, so they
-get the same XLA flags, and tests' subprocesses inherit it from the environment.
+get the same XLA flags, and tests' subprocesses inherit them from the environment.
 """
 
 import gc
 import os
 
-SUITE_XLA_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false",
-                   "--xla_cpu_parallel_codegen_split_count=1")
+from tests.xla_flags import SUITE_XLA_FLAGS
+
 for _flag in SUITE_XLA_FLAGS:  # A flag the caller set keeps the caller's value.
   if _flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}".strip()

@@ -11,6 +11,8 @@ import textwrap
 import numpy as np
 import pytest
 
+from tests.xla_flags import SUITE_XLA_FLAGS
+
 DATA = pathlib.Path(__file__).parent / "data"
 _spec = importlib.util.spec_from_file_location("make_golden", DATA / "make_golden.py")
 make_golden = importlib.util.module_from_spec(_spec)
@@ -38,8 +40,7 @@ def test_same_answers_at_the_default_optimisation_level():
   """The demo's scene replayed in a subprocess compiled with XLA's defaults (the suite
   compiles with faster codegen, see conftest.py): the bits users get match the
   stored ones."""
-  suite_only = ["--xla_backend_optimization_level", "--xla_cpu_use_fusion_emitters",
-                "--xla_cpu_parallel_codegen_split_count"]  # tests/conftest.py's SUITE_XLA_FLAGS.
+  suite_only = [flag.split("=")[0] for flag in SUITE_XLA_FLAGS]
   flags = " ".join(f for f in os.environ.get("XLA_FLAGS", "").split()
                    if f.split("=")[0] not in suite_only)
   code = textwrap.dedent(f"""
