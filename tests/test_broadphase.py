@@ -382,3 +382,63 @@ def test_swept_sensors_read_the_neighbor_table_without_missing_a_crossing():
   np.testing.assert_array_equal(near.sensed, far.sensed)
   np.testing.assert_array_equal(near.pos, far.pos)
   np.testing.assert_array_equal(near.status, far.status)  # FAST_BODY only, in both.
+
+
+# --- A neighbour table carried across steps (rollout) --------------------------------
+
+CARRY = NEAR.replace(gravity=True, iterations=1)
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def step_fn(world, config):
+  return jc.step(world, config)
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def rollout_fn(world, config):
+  return jc.rollout(world, config, 24, record=("status", "touching"))[1]
+
+
+@given(small_rooms(), st.sampled_from([1, 2]))
+def test_a_rollout_carrying_its_neighbor_table_steps_as_fresh_tables(world, substeps):
+  # The rollout keeps its table while every body stays within margin / 2 of where it
+  # was built; `jc.step` builds one every substep. The same answers, bit for bit.
+  cfg = CARRY.replace(substeps=substeps)
+  traj = rollout_fn(world, cfg)
+  w = world
+  for t in range(traj.pos.shape[0]):
+    w = step_fn(w, cfg)
+    np.testing.assert_array_equal(traj.pos[t], w.pos)
+    np.testing.assert_array_equal(traj.vel[t], w.vel)
+    np.testing.assert_array_equal(traj.touching[t], w.touching)
+    assert int(traj.status[t]) == int(w.status)
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def refresh_fn(table, pos, start, worlds, config):
+  bodies = bodies_of(worlds)
+  return core.pairs.refresh(table, pos, bodies, config, start)
+
+
+def test_a_neighbor_table_is_kept_within_half_its_margin_and_rebuilt_past_it():
+  a = jc.World.create([[0.0, 0.0], [1.5, 0.0], [0.0, 3.0]], [0.5, 0.5], 1.0, gravity=(0.0, 0.0))
+  worlds = jc.stack([a, a.replace(pos=a.pos.at[2, 1].set(4.0))])
+  cfg = jc.Config(gravity=False, neighbors=2, margin=0.6)
+  pos = jnp.moveaxis(worlds.pos, (0, 2), (2, 0))  # [2, n, B]
+  table = jax.jit(core.pairs.build, static_argnames="config")(pos, bodies_of(worlds), cfg)
+  # Body 1 moves 0.29 < margin / 2 at the substep's end: the same table, in both worlds.
+  near = pos.at[0, 1, :].add(-0.29)
+  kept = refresh_fn(table, near, pos, worlds, cfg)
+  np.testing.assert_array_equal(kept.ref, table.ref)
+  # Past it in world 1 only: both worlds get a table built where the substep ends.
+  far = near.at[0, 1, 1].add(-0.02)
+  new = refresh_fn(table, far, pos, worlds, cfg)
+  np.testing.assert_array_equal(new.ref, far)
+  # Past it at the substep's start (a body the step before moved): rebuilt too.
+  new = refresh_fn(table, pos, far, worlds, cfg)
+  np.testing.assert_array_equal(new.ref, pos)
+  # A table that was never built (a rollout's first step) is always rebuilt.
+  empty = core.pairs.empty(bodies_of(worlds), cfg)
+  fresh = refresh_fn(empty, pos, pos, worlds, cfg)
+  np.testing.assert_array_equal(fresh.cand.mask, table.cand.mask)
+  np.testing.assert_array_equal(fresh.cand.idx, table.cand.idx)

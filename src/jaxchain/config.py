@@ -69,11 +69,13 @@ class Config:
       than `depth`; not reverse-differentiable (`jax.grad` raises), so leave it off
       for gradients.
     neighbors: width of the neighbour table, or None to read the coarse candidates
-      (dense pairs or grid rows, by `broadphase`) in every pass. When set, each
-      (sub)step first filters the coarse table once into the partners of each
-      movable body within `margin` (`broadphase.build`), this many per body at most,
-      and every pass and the sensors read that narrow table: the pair stages cost
-      `n * neighbors` instead of `n * n`. Exact: a row with more partners sets
+      (dense pairs or grid rows, by `broadphase`) in every pass. When set, the
+      coarse table is filtered into the partners of each movable body within
+      `margin` (`broadphase.build`), this many per body at most, and every pass and
+      the sensors read that narrow table: the pair stages cost `n * neighbors`
+      instead of `n * n`. `step` builds it every substep; `rollout` keeps it from
+      step to step while every body stays within `margin / 2` of where it was built
+      (the same answers). Exact: a row with more partners sets
       `status.NEIGHBOR_OVERFLOW`, and a body that moves more than `margin / 2` along
       an axis between the build and a use sets `status.NEIGHBOR_MARGIN`; neither is
       ever a silent miss. `for_world` sizes it from the scene.

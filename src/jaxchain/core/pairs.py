@@ -245,6 +245,41 @@ def build(pos: jax.Array, bodies: Bodies, config, start: jax.Array | None = None
   return Neighbors(cand=cand, ref=pos, code=(overflow | found | code).astype(jnp.int32))
 
 
+def empty(bodies: Bodies, config) -> Neighbors | None:
+  """A neighbour table no step can use (`ref` at infinity): the first `refresh` of a
+  rollout rebuilds it. None without `config.neighbors`."""
+  if config.neighbors is None:
+    return None
+  n, B = bodies.shape
+  shape = (min(config.neighbors, n), n, B)
+  cand = Candidates.of(jnp.zeros(shape, jnp.int32), jnp.zeros(shape, bool))
+  ref = jnp.full((2, n, B), jnp.inf, bodies.half.dtype)
+  return Neighbors(cand=cand, ref=ref, code=jnp.zeros((B,), jnp.int32))
+
+
+def refresh(table: Neighbors | None, pos: jax.Array, bodies: Bodies, config,
+            start: jax.Array) -> Neighbors | None:
+  """The neighbour table of a substep that starts at `start` and is predicted to reach
+  `pos` (`[2, n, B]`): `table` itself where every active body of every world is, at
+  both, within `margin / 2` of where it was built along each axis (a Verlet list, as
+  jax-md's `neighbor_list`), else a new one (`build`); without `table`, a new one.
+
+  Reuse changes no answer: `table` holds every pair within `skin + margin` at its
+  build, so every pair within the skin of each other anywhere on the substep's
+  straight motions (what the passes, their margin checks and the swept sensor test
+  read), and its rows list partners in the coarse source's order as a new build
+  would. A batch rebuilds for every world once one world needs it (`lax.cond`).
+  """
+  if config.neighbors is None:
+    return None
+  if table is None:
+    return build(pos, bodies, config, start)
+  ref = lax.stop_gradient(table.ref)
+  far = lambda x: jnp.abs(lax.stop_gradient(x) - ref) > 0.5 * config.margin
+  stale = any_world(bodies.active[None] & (far(start) | far(pos)))
+  return lax.cond(jnp.any(stale), lambda: build(pos, bodies, config, start), lambda: table)
+
+
 def moved(table: Neighbors, pos: jax.Array, active: jax.Array, margin: float) -> jax.Array:
   """`[B]` `NEIGHBOR_MARGIN` where an active body is more than `margin / 2` from where
   `table` was built along an axis (pairs could be missing), else 0."""

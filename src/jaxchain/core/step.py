@@ -114,10 +114,12 @@ def crushed_bit(crushed: jax.Array) -> jax.Array:
   return flags.bit(any_world(crushed), status.CRUSHED)
 
 
-def substep(state: State, bodies: Bodies, config, sub_dt: float,
-            accel: jax.Array | None) -> State:
+def substep(state: State, bodies: Bodies, config, sub_dt: float, accel: jax.Array | None,
+            table: pairs.Neighbors | None = None) -> tuple[State, pairs.Neighbors | None]:
   """Integrate (semi-implicit Euler), then the passes, which move the bodies apart and
-  update their velocities from the contact impulses and friction."""
+  update their velocities from the contact impulses and friction. `table`: the
+  neighbour table of the substep before (`pairs.refresh` keeps it while it holds);
+  returns the state and the table this substep read."""
   pos, vel = state.pos, state.vel
   active, movable = bodies.active[None], bodies.movable[None]
   if accel is not None:
@@ -131,7 +133,7 @@ def substep(state: State, bodies: Bodies, config, sub_dt: float,
   # while both exist.
   predicted = jnp.stack([jnp.where(active[0], pos[0] + vel[0] * sub_dt, pos[0]),
                          pos[1] + motion[1]])
-  table = pairs.build(predicted, bodies, config, pos)  # None without neighbours.
+  table = pairs.refresh(table, predicted, bodies, config, pos)  # None without neighbours.
   p, v, found, crushed, touching = passes(bodies, predicted, config, start=pos, vel=vel,
                                           table=table)
   # Sensors see every overlap during the step: swept over this substep's motion.
@@ -139,21 +141,32 @@ def substep(state: State, bodies: Bodies, config, sub_dt: float,
   code = (code | found | seen | flags.finite(bodies, p, v) | crushed_bit(crushed)
           | flags.motion_lost(bodies, pos, p, v, sub_dt))
   return State(pos=p, vel=v, status=state.status | code, touching=state.touching | touching,
-               crushed=state.crushed | crushed, sensed=state.sensed | sensed)
+               crushed=state.crushed | crushed, sensed=state.sensed | sensed), table
 
 
 def step(state: State, bodies: Bodies, config, accel: jax.Array | None = None) -> State:
   """One step: `config.substeps` substeps of `dt / substeps`. `accel`: optional
   `[2, n, B]` accelerations for this step (every active body)."""
+  return advance(state, None, bodies, config, accel)[0]
+
+
+def advance(state: State, table: pairs.Neighbors | None, bodies: Bodies, config,
+            accel: jax.Array | None = None) -> tuple[State, pairs.Neighbors | None]:
+  """`step` that also takes and returns the neighbour table (`pairs.refresh`): a
+  rollout carries it from step to step and rebuilds it only when a body left its
+  margin. The same answer as `step`."""
   sub_dt = config.dt / config.substeps
   zeros = lambda x: jnp.zeros_like(x)
   state = dataclasses.replace(state, crushed=zeros(state.crushed),
                               touching=zeros(state.touching), sensed=zeros(state.sensed),
                               status=state.status | flags.switched_off(bodies, config))
   if config.substeps == 1:
-    return substep(state, bodies, config, sub_dt, accel)
+    return substep(state, bodies, config, sub_dt, accel, table)
+  if table is None:
+    table = pairs.empty(bodies, config)
   return lax.fori_loop(0, config.substeps,
-                       lambda _, s: substep(s, bodies, config, sub_dt, accel), state)
+                       lambda _, c: substep(c[0], bodies, config, sub_dt, accel, c[1]),
+                       (state, table))
 
 
 def resolve(state: State, bodies: Bodies, config) -> State:
@@ -181,13 +194,16 @@ def rollout(state: State, bodies: Bodies, config, n_steps: int,
   Returns:
     `(final, trajectory)`, the trajectory a dict of `[n_steps, ...]` arrays.
   """
-  def body(s, xs):
+  def body(carry, xs):
+    s, table = carry
     t, given = xs
     accel = given if policy is None else policy(s, t)
-    s = step(s, bodies, config, accel)
+    s, table = advance(s, table, bodies, config, accel)
     out = {"pos": s.pos, "vel": s.vel}
     out.update({name: getattr(s, name) for name in record})
-    return s, out
+    return (s, table), out
 
   steps = jnp.arange(n_steps, dtype=jnp.int32)
-  return lax.scan(body, state, (steps, controls), length=n_steps)
+  (state, _), traj = lax.scan(body, (state, pairs.empty(bodies, config)), (steps, controls),
+                              length=n_steps)
+  return state, traj
