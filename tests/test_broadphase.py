@@ -362,6 +362,10 @@ def test_for_world_picks_and_sizes_the_neighbor_table():
   assert jc.Config.for_world(fast).margin == pytest.approx(4 * 2 * (6 + 9.81 / 60) / 60)
   faster = world.replace(vel=world.vel.at[10].set([0.0, -30.0]))  # Margin 4: rows of ~60.
   assert jc.Config.for_world(faster, substeps=1).neighbors is None
+  big = scenes.lattice_room(256, 0)  # The grid: a table narrower than its rows of 22.
+  big = jc.Config.for_world(jc.World.create(big.pos, big.half, big.mass, friction=0.5))
+  assert big.broadphase == "grid" and big.neighbors == sizing.MIN_NEIGHBORS
+  assert big.neighbors < big.grid.row_size
   small = scenes.platformer().scene.world()  # 14 bodies: a table of 12 would save nothing.
   assert jc.Config.for_world(small).neighbors is None
   final, _ = jc.rollout(world, cfg, 60)
