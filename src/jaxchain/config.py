@@ -63,11 +63,11 @@ class Config:
       it, and a world that uses one its config leaves out sets
       `status.SWITCHED_OFF` and the bit naming it (`ONE_WAY_OFF`, `LAYERS_OFF`,
       `SENSORS_OFF`).
-    converge: forward-only mode: every hop loop stops as soon as a hop changes
-      nothing (a `while_loop`; under `vmap`, once every world in the batch has), with
-      the same answer as `depth` hops, bit for bit. Faster when chains are shorter
-      than `depth`; not reverse-differentiable (`jax.grad` raises), so leave it off
-      for gradients.
+    converge: forward-only mode: every hop loop is a `while_loop` that stops after
+      its second hop when that hop changed nothing (in the whole batch), else runs its
+      `depth` hops; the same answer as `depth` hops, bit for bit. Faster where
+      nothing is carried (free fall), as fast on a settled room; not
+      reverse-differentiable (`jax.grad` raises), so leave it off for gradients.
     neighbors: width of the neighbour table, or None to read the coarse candidates
       (dense pairs or grid rows, by `broadphase`) in every pass. When set, the
       coarse table is filtered into the partners of each movable body within
