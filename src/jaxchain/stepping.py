@@ -76,25 +76,19 @@ def _xy_major(x: jax.Array) -> jax.Array:
 
 # ---------------------------------------------------------------- kernels on batches
 
-# Every kernel takes `branch` (static): whether the core may skip work a batch does not
-# need by a `lax.cond` (`core.step.passes`). False in the tangent rule of a single-world
-# call, which a `jax.vmap` over `jax.grad` batches (a batched `cond` does not transpose).
-
-def _step_kernel(config: Config, world: World, accel: jax.Array | None, *,
-                 branch: bool = True) -> World:
+def _step_kernel(config: Config, world: World, accel: jax.Array | None) -> World:
   state, bodies = core.from_world(world)
   accel = None if accel is None else _xy_minor(accel)
-  return core.to_world(world, core.step.step(state, bodies, config, accel, branch=branch))
+  return core.to_world(world, core.step.step(state, bodies, config, accel))
 
 
-def _resolve_kernel(config: Config, world: World, *, branch: bool = True) -> World:
+def _resolve_kernel(config: Config, world: World) -> World:
   state, bodies = core.from_world(world)
-  return core.to_world(world, core.step.resolve(state, bodies, config, branch=branch))
+  return core.to_world(world, core.step.resolve(state, bodies, config))
 
 
 def _rollout_kernel(config: Config, n_steps: int, policy, record: tuple[str, ...],
-                    world: World, controls: jax.Array | None, *,
-                    branch: bool = True) -> tuple[World, Trajectory]:
+                    world: World, controls: jax.Array | None) -> tuple[World, Trajectory]:
   state, bodies = core.from_world(world)
   controls = None if controls is None else _xy_minor(controls)  # [T, 2, n, B]
   policy_minor = None
@@ -104,8 +98,7 @@ def _rollout_kernel(config: Config, n_steps: int, policy, record: tuple[str, ...
       accel = jax.vmap(lambda w: _policy_accel(policy, w, t))(view)
       return _xy_minor(accel)
 
-  final, traj = core.step.rollout(state, bodies, config, n_steps, controls, policy_minor, record,
-                                  branch=branch)
+  final, traj = core.step.rollout(state, bodies, config, n_steps, controls, policy_minor, record)
   # [T, k, n, B] -> [B, T, n, k]; [T, n, B] -> [B, T, n]; [T, B] -> [B, T].
   def major(name, x):
     if name in ("pos", "vel", "touching"):
@@ -156,10 +149,8 @@ def batch_route(kernel: Callable) -> Callable:
   * Under `jax.jvp` / `jax.grad` (a `custom_jvp`: `custom_vmap` alone does not support
     reverse mode): the tangents of the plain kernel at one world, which reverse mode
     transposes; differentiating a vmapped call batches that rule as JAX batches any
-    code. (The tangent rule's kernel runs without the core's `lax.cond`s,
-    `branch=False`: a `cond` on a batched predicate becomes a `select` with a
-    `stop_gradient`, which reverse mode cannot transpose. A forward call on one world
-    takes them, as a batch does.)
+    code. (The kernel at one world has no `lax.cond` over its batch, whose batching
+    rule would put a `stop_gradient` on those tangents.)
   * Sharded batches: the kernel runs in `sharding.in_auto_axes` (its gathers then stay
     within each device's block of worlds: `core.layout.lanes_split`).
   """
@@ -186,7 +177,7 @@ def batch_route(kernel: Callable) -> Callable:
     out = batched(_broadcast(axis_size, in_batched[0], args))
     return out, _all_batched(out)
 
-  plain = lambda a: _drop_axis(kernel(*_add_axis(a), branch=False))
+  plain = lambda a: _drop_axis(kernel(*_add_axis(a)))
 
   @jax.custom_jvp
   def one(args):
@@ -368,7 +359,6 @@ def _rollout(world: World, config: Config, n_steps: int, controls: jax.Array | N
   kernel = functools.partial(_rollout_kernel, config, n_steps, policy, record)
   if world.pos.ndim == 3:
     return _batched(kernel, world, controls)
-  if policy is not None:  # A policy is user code closing over anything: no custom rule
-    # (a user's `vmap` and `grad` reach the kernel itself: no `cond`s in it).
-    return _drop_axis(kernel(_add_axis(world), None, branch=False))
+  if policy is not None:  # A policy is user code closing over anything: no custom rule.
+    return _drop_axis(kernel(_add_axis(world), None))
   return _single_rollout(config, n_steps, record)(world, controls)

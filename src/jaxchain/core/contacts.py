@@ -96,8 +96,7 @@ class Contacts:
 
 def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
              start: jax.Array | None = None, one_way: OneWay | None = None,
-             surface: jax.Array | None = None, walk: jax.Array | None = None, *,
-             branch: bool = True) -> Contacts:
+             surface: jax.Array | None = None, walk: jax.Array | None = None) -> Contacts:
   """Contacts of every candidate pair.
 
   The contact axis of a pair that overlapped at `start` (or of every pair, without
@@ -141,7 +140,7 @@ def contacts(pos: jax.Array, half: jax.Array, cand: Candidates, skin: float,
     if surface is not None:
       near = (ox >= -skin) & (oy >= -skin)  # Could be a link at `pos`.
       use_y = seam_axis(cand, half, surface, dx0, dy0, ox0, oy0, skin, use_y, walk, near,
-                        level, branch=branch)
+                        level)
     dx, dy = jnp.where(separated, dx0, dx), jnp.where(separated, dy0, dy)
   admitted = vertical = upward = None
   if one_way is not None:
@@ -289,8 +288,7 @@ def surface_cover(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: ja
 def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Array,
               dy0: jax.Array, ox0: jax.Array, oy0: jax.Array, skin: float,
               use_y: jax.Array, walk: jax.Array | None = None,
-              near: jax.Array | None = None, level=None, *, branch: bool = True
-              ) -> jax.Array:
+              near: jax.Array | None = None, level=None) -> jax.Array:
   """The contact axis of corner contacts next to surfaces (`[W, n, B]` bool: y or not).
 
   Two bodies whose faces were level along both axes at the start meet at a common corner
@@ -311,7 +309,7 @@ def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Ar
   with its edge on a floor seam lands, one hitting a wall of tiles with its bottom on a
   seam hits the wall). Only pairs `near` (overlapping within the skin at the pass's
   positions) are judged. Other pairs keep `use_y`. Corner and approaching contacts are
-  rare: with `branch` a batch without one skips the rule (`lax.cond`).
+  rare: a batch (`B > 1`) without one skips the rule (`lax.cond`).
   """
   level_x, level_y = (jnp.abs(ox0) <= skin, jnp.abs(oy0) <= skin) if level is None else level
   corner = level_x & level_y
@@ -336,7 +334,7 @@ def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Ar
     use_y = jnp.where(approach & flush, level_y, use_y)
     return jnp.where(corner & (beside_x != beside_y), beside_x, use_y)
 
-  if not branch:  # The tangent rule of a single-world call: no `cond` (`step.passes`).
+  if use_y.shape[-1] == 1:  # One world: nothing to skip for the rest of a batch.
     return rule(use_y)
   return lax.cond(jnp.any(any_world((corner | approach) & cand.mask)), rule, lambda u: u,
                   use_y)

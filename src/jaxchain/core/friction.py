@@ -35,7 +35,7 @@ ROUNDS = 3
 
 def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array,
              shared: jax.Array, sticking: jax.Array, mass: jax.Array, *, depth: int,
-             converge: bool = False, short: jax.Array | None = None, branch: bool = True):
+             converge: bool = False, short: jax.Array | None = None):
   """Coulomb friction impulses per link, acting on units, with mass splitting.
 
   Link `(d, i, j)` rubs along the other axis. What moves with i there is i's unit on its
@@ -68,7 +68,6 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
     depth: hops a unit's motion travels (static).
     short: optional `[4, n, B]` bool, where the resolver's hops did not reach a chain's
       end (`chain.Pass.short`): the friction units are cut short there too.
-    branch: whether a batch may skip the slip rounds no world needs (`step.passes`).
 
   Returns:
     `(vel, scaled, exhausted)`: `[2, n, B]` velocities, and `[B]` bools: the energy
@@ -132,7 +131,7 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
       units_now = units(f, mass, held, depth, converge)
       return (held, slip) + solve(units_now, held, slip) + (units_now,)
 
-    if not branch:  # Every round: no `cond` in a single-world tangent rule (`step.passes`).
+    if again.shape[-1] == 1:  # One world: every round (nothing to skip for a batch).
       return work()
     return lax.cond(jnp.any(again), work, lambda: carry)
 

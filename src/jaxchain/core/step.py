@@ -24,14 +24,8 @@ from jaxchain.core.layout import NUM_DIRECTIONS, Bodies, State, any_world
 
 
 def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = None,
-           vel: jax.Array | None = None, table: pairs.Neighbors | None = None,
-           branch: bool = True):
+           vel: jax.Array | None = None, table: pairs.Neighbors | None = None):
   """`config.iterations` resolution passes from `pos` (`[2, n, B]`).
-
-  `branch` (static): whether the batch may skip work no world needs by a `lax.cond`
-  (the seam rule, a link table's second slot, friction's slip rounds). False in the
-  tangent rule of a single-world call (`stepping.batch_route`), which a `jax.vmap`
-  over `jax.grad` batches: a `cond` on a batched predicate does not transpose.
 
   Returns:
     `(pos, vel, status [B], crushed [n, B], touching [4, n, B])` (`vel` None without
@@ -70,8 +64,7 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
       if config.has_friction:
         v, rubbed, cut = friction.friction(v, f, out.impulse, bodies.friction, out.shared,
                                            out.sticking, mass, depth=config.depth,
-                                           converge=config.converge, short=out.short,
-                                           branch=branch)
+                                           converge=config.converge, short=out.short)
         scaled, exhausted = scaled | rubbed, exhausted | cut
     return p + out.disp, v, scaled, exhausted, out.crushed
 
@@ -80,14 +73,13 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
     cand, found = pairs.candidates(p, bodies, config, table)
     cand = contacts.admit(cand, bodies, layers=config.layers, sensors=config.sensors)
     ow = one_way if one_way is None or v is None else dataclasses.replace(one_way, vel=v)
-    c = contacts.contacts(p, bodies.half, cand, config.skin, start, ow, surface, walk,
-                          branch=branch)
+    c = contacts.contacts(p, bodies.half, cand, config.skin, start, ow, surface, walk)
     f, overflow = contacts.link_table(c, cand, config.links, rows=movable)
-    if f.slots > 1 and f.idx is not None and branch:
+    if f.slots > 1 and f.idx is not None and B > 1:
       # Link slots that cost what the batch needs: a settled room has at most one link
       # per body and direction, and a batch in which no body has a second one runs the
-      # chain on one slot (the same answer, half the hops' gathers). Without `branch`
-      # (the tangent rule of a single-world call) the table runs as it is.
+      # chain on one slot (the same answer, half the hops' gathers). One world (`B = 1`,
+      # also the tangent rule of a vmapped call) runs its table as it is: half the code.
       new_p, v, scaled, exhausted, hit = lax.cond(
           jnp.any(any_world(f.mask[1:])), lambda: resolve(f, p, v),
           lambda: resolve(f.first(1), p, v))
@@ -123,8 +115,7 @@ def crushed_bit(crushed: jax.Array) -> jax.Array:
 
 
 def substep(state: State, bodies: Bodies, config, sub_dt: float, accel: jax.Array | None,
-            table: pairs.Neighbors | None = None, branch: bool = True
-            ) -> tuple[State, pairs.Neighbors | None]:
+            table: pairs.Neighbors | None = None) -> tuple[State, pairs.Neighbors | None]:
   """Integrate (semi-implicit Euler), then the passes, which move the bodies apart and
   update their velocities from the contact impulses and friction. `table`: the
   neighbour table of the substep before (`pairs.refresh` keeps it while it holds);
@@ -142,10 +133,9 @@ def substep(state: State, bodies: Bodies, config, sub_dt: float, accel: jax.Arra
   # while both exist.
   predicted = jnp.stack([jnp.where(active[0], pos[0] + vel[0] * sub_dt, pos[0]),
                          pos[1] + motion[1]])
-  # None without neighbours; rebuilt every substep without `branch`.
-  table = pairs.refresh(table if branch else None, predicted, bodies, config, pos)
+  table = pairs.refresh(table, predicted, bodies, config, pos)  # None without neighbours.
   p, v, found, crushed, touching = passes(bodies, predicted, config, start=pos, vel=vel,
-                                          table=table, branch=branch)
+                                          table=table)
   # Sensors see every overlap during the step: swept over this substep's motion.
   sensed, seen = sensors(bodies, p, config, table, start=pos)
   code = (code | found | seen | flags.finite(bodies, p, v) | crushed_bit(crushed)
@@ -154,17 +144,14 @@ def substep(state: State, bodies: Bodies, config, sub_dt: float, accel: jax.Arra
                crushed=state.crushed | crushed, sensed=state.sensed | sensed), table
 
 
-def step(state: State, bodies: Bodies, config, accel: jax.Array | None = None, *,
-         branch: bool = True) -> State:
+def step(state: State, bodies: Bodies, config, accel: jax.Array | None = None) -> State:
   """One step: `config.substeps` substeps of `dt / substeps`. `accel`: optional
-  `[2, n, B]` accelerations for this step (every active body). `branch`: see
-  `passes`."""
-  return advance(state, None, bodies, config, accel, branch=branch)[0]
+  `[2, n, B]` accelerations for this step (every active body)."""
+  return advance(state, None, bodies, config, accel)[0]
 
 
 def advance(state: State, table: pairs.Neighbors | None, bodies: Bodies, config,
-            accel: jax.Array | None = None, *, branch: bool = True
-            ) -> tuple[State, pairs.Neighbors | None]:
+            accel: jax.Array | None = None) -> tuple[State, pairs.Neighbors | None]:
   """`step` that also takes and returns the neighbour table (`pairs.refresh`): a
   rollout carries it from step to step and rebuilds it only when a body left its
   margin. The same answer as `step`."""
@@ -174,18 +161,18 @@ def advance(state: State, table: pairs.Neighbors | None, bodies: Bodies, config,
                               touching=zeros(state.touching), sensed=zeros(state.sensed),
                               status=state.status | flags.switched_off(bodies, config))
   if config.substeps == 1:
-    return substep(state, bodies, config, sub_dt, accel, table, branch)
+    return substep(state, bodies, config, sub_dt, accel, table)
   if table is None:
     table = pairs.empty(bodies, config)
   return lax.fori_loop(0, config.substeps,
-                       lambda _, c: substep(c[0], bodies, config, sub_dt, accel, c[1], branch),
+                       lambda _, c: substep(c[0], bodies, config, sub_dt, accel, c[1]),
                        (state, table))
 
 
-def resolve(state: State, bodies: Bodies, config, *, branch: bool = True) -> State:
+def resolve(state: State, bodies: Bodies, config) -> State:
   """Collision resolution only: positions, `crushed`, `touching`, `sensed`, status;
-  velocities untouched. `branch`: see `passes`."""
-  pos, _, code, crushed, touching = passes(bodies, state.pos, config, branch=branch)
+  velocities untouched."""
+  pos, _, code, crushed, touching = passes(bodies, state.pos, config)
   sensed, found = sensors(bodies, pos, config)
   code = (code | found | flags.finite(bodies, state.pos, pos) | crushed_bit(crushed)
           | flags.switched_off(bodies, config, physics=False))
@@ -196,15 +183,13 @@ def resolve(state: State, bodies: Bodies, config, *, branch: bool = True) -> Sta
 def rollout(state: State, bodies: Bodies, config, n_steps: int,
             controls: jax.Array | None = None,
             policy: Callable[[State, jax.Array], jax.Array] | None = None,
-            record: Sequence[str] = (), *, branch: bool = True
-            ) -> tuple[State, dict[str, jax.Array]]:
+            record: Sequence[str] = ()) -> tuple[State, dict[str, jax.Array]]:
   """`n_steps` steps under `lax.scan`, in this layout throughout.
 
   Args:
     controls: optional `[n_steps, 2, n, B]` accelerations.
     policy: optional `policy(state, t) -> [2, n, B]` accelerations (closed loop).
     record: names of `State` fields kept per step besides `pos` and `vel`.
-    branch: see `passes`.
 
   Returns:
     `(final, trajectory)`, the trajectory a dict of `[n_steps, ...]` arrays.
@@ -213,7 +198,7 @@ def rollout(state: State, bodies: Bodies, config, n_steps: int,
     s, table = carry
     t, given = xs
     accel = given if policy is None else policy(s, t)
-    s, table = advance(s, table, bodies, config, accel, branch=branch)
+    s, table = advance(s, table, bodies, config, accel)
     out = {"pos": s.pos, "vel": s.vel}
     out.update({name: getattr(s, name) for name in record})
     return (s, table), out
