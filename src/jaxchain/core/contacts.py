@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxchain.core.layout import (NUM_DIRECTIONS, Bodies, any_world, fold, lane_index,
+from jaxchain.core.layout import (NUM_DIRECTIONS, Bodies, any_world, batch_any, fold, lane_index,
                                   materialise, opposite, shift, take)
 from jaxchain.core.pairs import Candidates, pack, peel
 
@@ -309,7 +309,7 @@ def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Ar
   with its edge on a floor seam lands, one hitting a wall of tiles with its bottom on a
   seam hits the wall). Only pairs `near` (overlapping within the skin at the pass's
   positions) are judged. Other pairs keep `use_y`. Corner and approaching contacts are
-  rare: a batch (`B > 1`) without one skips the rule (`lax.cond`).
+  rare: a batch without one skips the rule (`lax.cond` on `layout.batch_any`).
   """
   level_x, level_y = (jnp.abs(ox0) <= skin, jnp.abs(oy0) <= skin) if level is None else level
   corner = level_x & level_y
@@ -334,10 +334,7 @@ def seam_axis(cand: Candidates, half: jax.Array, surface: jax.Array, dx0: jax.Ar
     use_y = jnp.where(approach & flush, level_y, use_y)
     return jnp.where(corner & (beside_x != beside_y), beside_x, use_y)
 
-  if use_y.shape[-1] == 1:  # One world: nothing to skip for the rest of a batch.
-    return rule(use_y)
-  return lax.cond(jnp.any(any_world((corner | approach) & cand.mask)), rule, lambda u: u,
-                  use_y)
+  return lax.cond(batch_any((corner | approach) & cand.mask), rule, lambda u: u, use_y)
 
 
 @jax.tree_util.register_dataclass

@@ -17,7 +17,7 @@ from jax import lax
 
 from jaxchain.core import chain
 from jaxchain.core.contacts import Links
-from jaxchain.core.layout import any_world, fold, opposite, safe_divide, safe_sqrt
+from jaxchain.core.layout import any_world, batch_any, fold, opposite, safe_divide, safe_sqrt
 
 # Linked bodies whose tangential velocities differ by at most this (units per second)
 # move together for friction: they are one unit, and friction on the bottom one stops
@@ -131,9 +131,7 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
       units_now = units(f, mass, held, depth, converge)
       return (held, slip) + solve(units_now, held, slip) + (units_now,)
 
-    if again.shape[-1] == 1:  # One world: every round (nothing to skip for a batch).
-      return work()
-    return lax.cond(jnp.any(again), work, lambda: carry)
+    return lax.cond(batch_any(again), work, lambda: carry)
 
   carry = (sticking, jnp.zeros_like(budget), impulse, total, count, shared)
   carry = lax.fori_loop(1, ROUNDS, slip_round, carry)

@@ -285,6 +285,32 @@ def any_world(x: jax.Array) -> jax.Array:
   return fold("any", x, x.ndim - 1) if x.ndim > 1 else x
 
 
+@custom_vmap
+def _batch_any(x: jax.Array) -> jax.Array:
+  return jnp.any(x)
+
+
+@_batch_any.def_vmap
+def _batch_any_rule(axis_size, in_batched, x):
+  del axis_size, in_batched
+  return _batch_any(x), False  # Over the vmapped worlds too: a predicate, unbatched.
+
+
+def batch_any(x: jax.Array) -> jax.Array:
+  """Whether any element of `x` (bool) is set, in this batch and in every batch a
+  `jax.vmap` runs beside it: a `[]` bool that is never batched.
+
+  The predicate of each of the core's `lax.cond`s, which skip work no world of the
+  batch needs (the seam rule, a link table's second slot, friction's slip rounds,
+  rebuilding the neighbour table). Their other branch gives every world the same
+  answer, so running it because some world under the same `vmap` needs it changes no
+  value. Under a `vmap` (a user's over a single-world call, or JAX's over the tangent
+  rule when differentiating one) the `cond` stays a `cond`: one on a batched predicate
+  would become a `select` of both branches, and reverse mode cannot transpose the
+  `stop_gradient` that `select` puts on its predicate's branches."""
+  return _batch_any(lax.stop_gradient(x))
+
+
 def world_sum(x: jax.Array, y: jax.Array) -> jax.Array:
   """Per-world sum of per-body terms along x and y (`[n, B]` each) -> `[B]`."""
   return jnp.sum(lax.optimization_barrier(jnp.stack([x, y], axis=1)), axis=(0, 1))

@@ -22,7 +22,7 @@ from jax import lax
 
 from jaxchain import broadphase as host_broadphase
 from jaxchain import status
-from jaxchain.core.layout import Bodies, any_world, fold, lane_index, shift, take
+from jaxchain.core.layout import Bodies, any_world, batch_any, fold, lane_index, shift, take
 
 
 @jax.tree_util.register_dataclass
@@ -251,10 +251,11 @@ def empty(bodies: Bodies, config) -> Neighbors | None:
   if config.neighbors is None:
     return None
   n, B = bodies.shape
-  shape = (min(config.neighbors, n), n, B)
-  cand = Candidates.of(jnp.zeros(shape, jnp.int32), jnp.zeros(shape, bool))
-  ref = jnp.full((2, n, B), jnp.inf, bodies.half.dtype)
-  return Neighbors(cand=cand, ref=ref, code=jnp.zeros((B,), jnp.int32))
+  pos = jnp.zeros((2, n, B), bodies.half.dtype)
+  shapes = jax.eval_shape(lambda p: build(p, bodies, config, p), pos)  # The width it has.
+  table = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), shapes)
+  return Neighbors(cand=Candidates.of(table.cand.idx, table.cand.mask),
+                   ref=jnp.full((2, n, B), jnp.inf, bodies.half.dtype), code=table.code)
 
 
 def refresh(table: Neighbors | None, pos: jax.Array, bodies: Bodies, config,
@@ -277,7 +278,7 @@ def refresh(table: Neighbors | None, pos: jax.Array, bodies: Bodies, config,
   ref = lax.stop_gradient(table.ref)
   far = lambda x: jnp.abs(lax.stop_gradient(x) - ref) > 0.5 * config.margin
   stale = any_world(bodies.active[None] & (far(start) | far(pos)))
-  return lax.cond(jnp.any(stale), lambda: build(pos, bodies, config, start), lambda: table)
+  return lax.cond(batch_any(stale), lambda: build(pos, bodies, config, start), lambda: table)
 
 
 def moved(table: Neighbors, pos: jax.Array, active: jax.Array, margin: float) -> jax.Array:

@@ -20,7 +20,7 @@ from jax import lax
 
 from jaxchain import status
 from jaxchain.core import chain, contacts, flags, friction, pairs
-from jaxchain.core.layout import NUM_DIRECTIONS, Bodies, State, any_world
+from jaxchain.core.layout import NUM_DIRECTIONS, Bodies, State, any_world, batch_any
 
 
 def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = None,
@@ -75,14 +75,12 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
     ow = one_way if one_way is None or v is None else dataclasses.replace(one_way, vel=v)
     c = contacts.contacts(p, bodies.half, cand, config.skin, start, ow, surface, walk)
     f, overflow = contacts.link_table(c, cand, config.links, rows=movable)
-    if f.slots > 1 and f.idx is not None and B > 1:
+    if f.slots > 1 and f.idx is not None:
       # Link slots that cost what the batch needs: a settled room has at most one link
       # per body and direction, and a batch in which no body has a second one runs the
-      # chain on one slot (the same answer, half the hops' gathers). One world (`B = 1`,
-      # also the tangent rule of a vmapped call) runs its table as it is: half the code.
+      # chain on one slot (the same answer, half the hops' gathers).
       new_p, v, scaled, exhausted, hit = lax.cond(
-          jnp.any(any_world(f.mask[1:])), lambda: resolve(f, p, v),
-          lambda: resolve(f.first(1), p, v))
+          batch_any(f.mask[1:]), lambda: resolve(f, p, v), lambda: resolve(f.first(1), p, v))
     else:
       new_p, v, scaled, exhausted, hit = resolve(f, p, v)
     code = (code | found | flags.bit(overflow, status.LINK_OVERFLOW)
