@@ -39,6 +39,8 @@ import numpy as np
 
 from _bench import add_common_args, machine, out_dir
 
+CLOSING_GATE = "closing_gate"  # jaxchain.core.step.CLOSING_GATE (older commits lack it).
+
 # Stage of an equation: the innermost jaxchain frame that is not a shared helper, by
 # (file, function prefix); first match wins. Helpers (gathers, reductions over link
 # slots, safe division, loops) count toward the stage that called them. The files are
@@ -125,8 +127,8 @@ def _sub_jaxprs(eqn, times: int):
   return subs
 
 
-def walk(jaxpr, times: int, count: Count, while_trips: int, outer: str = "other",
-         branch: str = "common") -> None:
+def walk(jaxpr, times: float, count: Count, while_trips: int, outer: str = "other",
+         branch: str = "common", gate: float = 1.0) -> None:
   """Counts `jaxpr`'s equations into `count`, `times` each. An equation whose traceback
   names no jaxchain stage takes the stage of the equation it is inside (`outer`): JAX
   caches the jaxprs of its own jitted helpers (`jnp.where`, ...) and of custom rules,
@@ -134,7 +136,10 @@ def walk(jaxpr, times: int, count: Count, while_trips: int, outer: str = "other"
 
   A `cond` runs one branch: `branch="common"` counts its cheapest (the core's conds skip
   work a batch does not need: the seam rule without corner contacts, the second link
-  slot where no body has a second link), `"worst"` its most expensive."""
+  slot where no body has a second link), `"worst"` its most expensive. The closing
+  stage's gate (`core.step.CLOSING_GATE`: one loop runs the passes, then the closing
+  passes only for a batch with overlap left) runs its pass on the main passes, a
+  fraction `gate` of the loop's trips, and skips the rest on the common path."""
   for eqn in jaxpr.eqns:
     stage = _stage(eqn)
     stage = outer if stage == "other" else stage
@@ -143,9 +148,17 @@ def walk(jaxpr, times: int, count: Count, while_trips: int, outer: str = "other"
       options = []
       for b in eqn.params["branches"]:
         c = Count()
-        walk(b.jaxpr, times, c, while_trips, stage, branch)
+        walk(b.jaxpr, times, c, while_trips, stage, branch, gate)
         options.append(c)
-      pick = (min if branch == "common" else max)(options, key=lambda c: sum(c.elements.values()))
+      size = lambda c: sum(c.elements.values())
+      pick = (min if branch == "common" else max)(options, key=size)
+      if branch == "common" and CLOSING_GATE in str(eqn.source_info.name_stack):
+        pick = Count()
+        for c, share in zip(sorted(options, key=size), (1 - gate, gate)):
+          for mine, theirs in ((pick.elements, c.elements), (pick.gathered, c.gathered),
+                               (pick.primitives, c.primitives)):
+            mine.update({k: v * share for k, v in theirs.items()})
+          pick.while_loops += c.while_loops
       count.elements.update(pick.elements)
       count.gathered.update(pick.gathered)
       count.primitives.update(pick.primitives)
@@ -157,16 +170,18 @@ def walk(jaxpr, times: int, count: Count, while_trips: int, outer: str = "other"
               (eqn.params["cond_jaxpr"].jaxpr, times * while_trips)]
     if subs:
       for sub, t in subs:
-        walk(sub, t, count, while_trips, stage, branch)
+        walk(sub, t, count, while_trips, stage, branch, gate)
     else:
       count.add(eqn, times, stage)
 
 
-def meter(fn, *args, while_trips: int = 1, branch: str = "common") -> Count:
+def meter(fn, *args, while_trips: int = 1, branch: str = "common", config=None) -> Count:
   """The `Count` of one call of `fn(*args)` (traced, never run); `branch`: which branch
-  of a `cond` counts (`walk`)."""
+  of a `cond` counts (`walk`); `config`, the step's, says how many of the passes' loop
+  trips are main passes (the rest are the closing stage's, skipped on the common path)."""
   count = Count()
-  walk(jax.make_jaxpr(fn)(*args).jaxpr, 1, count, while_trips, branch=branch)
+  gate = 1.0 if config is None else config.iterations / (config.iterations + config.closing)
+  walk(jax.make_jaxpr(fn)(*args).jaxpr, 1, count, while_trips, branch=branch, gate=gate)
   return count
 
 
@@ -216,8 +231,8 @@ def scene_counts(smoke: bool = False) -> dict[str, dict]:
     world, config = make(8) if (smoke and name == "room of 64") else make()
     n = world.num_bodies
     batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (BATCH,) + x.shape), world)
-    count = meter(lambda w: jc.step(w, config), batch)
-    worst = meter(lambda w: jc.step(w, config), batch, branch="worst")
+    count = meter(lambda w: jc.step(w, config), batch, config=config)
+    worst = meter(lambda w: jc.step(w, config), batch, branch="worst", config=config)
     per = n * BATCH
     count_per = lambda c, s: c[s] / per
     stages = {s: [count_per(count.elements, s), count_per(count.gathered, s)] for s in ORDER

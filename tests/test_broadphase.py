@@ -103,8 +103,9 @@ def test_status_is_sticky_and_per_world_under_vmap():
   spec = jc.GridSpec(origin=(0.0, 0.0), cell=1.0, shape=(4, 4), reach=0.5, cell_capacity=1)
   cfg = jc.Config(gravity=False, broadphase="grid", grid=spec)
   out = jax.vmap(lambda w: jc.rollout(w, cfg, 3)[0])(jc.stack([good, bad]))
-  np.testing.assert_array_equal(out.status, [0, status.CELL_OVERFLOW])
-  assert len(jc.check(out)) == 1 and jc.check(out)[0].startswith("world 1:")
+  # The full cell hid the pair from the passes, so its overlap is also left (OVERLAP_LEFT).
+  np.testing.assert_array_equal(out.status, [0, status.CELL_OVERFLOW | status.OVERLAP_LEFT])
+  assert len(jc.check(out)) == 2 and all(line.startswith("world 1:") for line in jc.check(out))
   again = jc.step(jc.World.create([[0.2, 0.2]], [0.1, 0.1], 1.0, gravity=(0.0, 0.0)).replace(
       status=jnp.asarray(status.CELL_OVERFLOW, jnp.int32)), cfg)
   assert int(again.status) == status.CELL_OVERFLOW  # Kept until the user clears it.
@@ -325,13 +326,19 @@ def test_padded_inactive_bodies_never_enter_the_neighbor_table():
 
 def test_neighbor_table_from_the_grid_matches_dense():
   world = room(7).world(friction=0.4).pad(N)
-  assert jc.Config.for_world(world, neighbors=12).margin > 1.0  # From the overlaps it starts with.
+  sized = jc.Config.for_world(world, broadphase="grid", depth=6, neighbors=16)
+  assert sized.margin > 1.0  # From the overlaps it starts with.
   cfg = jc.Config.for_world(world, broadphase="grid", depth=6, neighbors=16, margin=0.6)
-  assert cfg.grid.cell >= 2 * cfg.grid.reach + broadphase.grid_skin(SKIN, cfg.margin)
-  grid_nb, _ = jc.rollout(world, cfg, 20)
   dense, _ = jc.rollout(world, cfg.replace(broadphase="dense", neighbors=None), 20)
-  assert int(grid_nb.status) & ~status.CRUSHED == 0
-  np.testing.assert_allclose(grid_nb.pos, dense.pos, atol=1e-6)
+  for c in (sized, cfg):
+    assert c.grid.cell >= 2 * c.grid.reach + broadphase.grid_skin(SKIN, c.margin)
+    grid_nb, _ = jc.rollout(world, c, 20)
+    np.testing.assert_allclose(grid_nb.pos, dense.pos, atol=1e-6)
+    # The margin for_world gives covers every use; 0.6 is too small for the closing
+    # passes, which read the step's table after bodies were pushed out of deep overlaps:
+    # flagged (and here the answer still matches).
+    extra = 0 if c is sized else status.NEIGHBOR_MARGIN
+    assert int(grid_nb.status) & ~status.CRUSHED == extra
   with pytest.raises(ValueError, match="a neighbour table with margin 3.0 needs cells"):
     jc.resolve(world, cfg.replace(margin=3.0))
 

@@ -80,13 +80,15 @@ def _step_ops(config, world) -> int:
 
 def _pair_ops(config, world) -> int:
   """Equations of the step (in every sub-jaxpr) with a per-pair output: `[n, n]` pairs of
-  one world, `[..., n, n, 1]` in the core's batch-minor layout."""
+  one world, `[..., n, n, B]` in the core's batch-minor layout (one world runs as a batch
+  of `stepping.ONE_WORLD`)."""
   n = world.num_bodies
+  pair = (n, n, jc.stepping.ONE_WORLD)
 
   def count(jaxpr) -> int:
     total = 0
     for eqn in jaxpr.eqns:
-      total += sum(tuple(getattr(v.aval, "shape", ()))[-3:] in ((n, n, 1),)
+      total += sum(tuple(getattr(v.aval, "shape", ()))[-3:] == pair
                    or getattr(v.aval, "shape", None) == (n, n) for v in eqn.outvars)
       for sub in jax.extend.core.jaxprs_in_params(eqn.params):
         total += count(sub)

@@ -79,6 +79,13 @@ class Config:
       `status.NEIGHBOR_OVERFLOW`, and a body that moves more than `margin / 2` along
       an axis between the build and a use sets `status.NEIGHBOR_MARGIN`; neither is
       ever a silent miss. `for_world` sizes it from the scene.
+    closing: the closing stage's budget: after the `iterations` passes, a world that
+      still has a pair overlapping by more than `skin` (pushed into each other by the
+      step: a support still sinking under a box) runs more passes from the positions
+      reached, at most this many, so the step ends without that overlap; a world with
+      none left keeps its state bit for bit, and a batch with none skips them. When the
+      budget runs out, `status.OVERLAP_LEFT`; with 0 the overlap is reported, not
+      closed. Positions-only `resolve` has no closing stage.
     margin: how far apart (gap along each axis, beyond `skin`) bodies may be and still
       enter the neighbour table: the motion it allows between its build and its last
       use in a substep (the resolution passes and the sensors), `margin / 2` per
@@ -102,6 +109,7 @@ class Config:
   converge: bool = False
   neighbors: int | None = None
   margin: float = 0.0
+  closing: int = 2
 
   def __post_init__(self):
     for name, example in (("gravity", "gravity=(0.0, -9.81)"), ("friction", "friction=0.3")):
@@ -121,7 +129,7 @@ class Config:
       raise ValueError(f"Config.dt: must be > 0, got {self.dt}")
     if self.skin < 0:
       raise ValueError(f"Config.skin: must be >= 0, got {self.skin}")
-    for name, lo in (("depth", 0), ("iterations", 1), ("substeps", 1)):
+    for name, lo in (("depth", 0), ("iterations", 1), ("substeps", 1), ("closing", 0)):
       v = getattr(self, name)
       if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
         raise ValueError(f"Config.{name}: expected an integer >= {lo}, got {v!r}")

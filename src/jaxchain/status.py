@@ -42,6 +42,7 @@ class Status(enum.IntFlag):
   ONE_WAY_OFF = 1 << 16
   SENSORS_OFF = 1 << 17
   LAYERS_OFF = 1 << 18
+  OVERLAP_LEFT = 1 << 19
 
   @property
   def message(self) -> str:
@@ -69,6 +70,7 @@ IMMOVABLE_OFF = Status.IMMOVABLE_OFF
 ONE_WAY_OFF = Status.ONE_WAY_OFF
 SENSORS_OFF = Status.SENSORS_OFF
 LAYERS_OFF = Status.LAYERS_OFF
+OVERLAP_LEFT = Status.OVERLAP_LEFT
 
 # Every bit's message, in bit order (the order `check` reports them in).
 MESSAGES = {
@@ -128,6 +130,10 @@ MESSAGES = {
     LAYERS_OFF: "the World's collision layers keep some bodies apart (category/mask) but "
                 "Config.layers is off: every pair collided (use Config.for_world, or "
                 "layers=True)",
+    OVERLAP_LEFT: "a pair the step pushed into each other still overlapped by more than the "
+                  "skin after the step's passes and Config.closing closing passes (not "
+                  "crushed, not one-way); the next step lifts it out by position, which can "
+                  "add potential energy (raise closing, iterations or substeps)",
 }
 
 

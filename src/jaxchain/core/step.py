@@ -23,6 +23,9 @@ from jaxchain.core import chain, contacts, flags, friction, pairs
 from jaxchain.core.layout import NUM_DIRECTIONS, Bodies, State, any_world, batch_any
 
 
+CLOSING_GATE = "closing_gate"
+
+
 def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = None,
            vel: jax.Array | None = None, table: pairs.Neighbors | None = None):
   """`config.iterations` resolution passes from `pos` (`[2, n, B]`).
@@ -68,10 +71,53 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
         scaled, exhausted = scaled | rubbed, exhausted | cut
     return p + out.disp, v, scaled, exhausted, out.crushed
 
-  def one_pass(_, carry):
-    p, v, code, cut, crushed, touching = carry
+  def overlap_parts(cand):
+    """What `overlap_left` reads of the candidates that does not move: the pairs it may
+    report (movable row, neither body one-way: a one-way body lets bodies through, the
+    one-way rule decides its contacts) and their summed half sizes less the skin."""
+    g = cand.gather
+    ok = cand.mask & movable[None]
+    if config.one_way:
+      ok = ok & ~bodies.one_way[None] & ~g(bodies.one_way)
+    return ok, [bodies.half[k][None] + g(bodies.half[k]) - config.skin for k in (0, 1)]
+
+  def source(tab):
+    """`(table, admitted candidates, overlap_parts)` of a neighbour table or dense pairs:
+    candidates that do not move, admitted once and read by every pass."""
+    cand = contacts.admit(pairs.candidates(pos, bodies, config, tab)[0], bodies,
+                          layers=config.layers, sensors=config.sensors)
+    return tab, cand, overlap_parts(cand)
+
+  # The grid's rows without a table are built per pass (`fixed` None).
+  fixed = source(table) if table is not None or not config.uses_grid(n) else None
+
+  def candidates(p, src):
+    """The admitted candidates at `p` and the status bits of reading them there."""
+    if src is not None:
+      tab, cand, _ = src
+      found = jnp.zeros((B,), jnp.int32)
+      if tab is not None:  # The margin check.
+        found = tab.code | pairs.moved(tab, p, bodies.active, config.margin)
+      return cand, found
     cand, found = pairs.candidates(p, bodies, config, table)
-    cand = contacts.admit(cand, bodies, layers=config.layers, sensors=config.sensors)
+    return contacts.admit(cand, bodies, layers=config.layers, sensors=config.sensors), found
+
+  def overlap_left(p, crushed, src):
+    """`[B]`: a pair of the candidates overlaps by more than the skin along both axes at
+    `p`, neither body crushed in this step."""
+    if src is not None:
+      cand, (ok, reach) = src[1], src[2]
+    else:
+      cand = candidates(p, src)[0]
+      ok, reach = overlap_parts(cand)
+    ok = ok & ~crushed[None]
+    for k in (0, 1):  # A crushed partner sits at infinity: no overlap.
+      ok = ok & (reach[k] > jnp.abs(cand.gather(jnp.where(crushed, jnp.inf, p[k])) - p[k][None]))
+    return any_world(ok)
+
+  def one_pass(_, carry, src=fixed):
+    p, v, code, cut, crushed, touching = carry
+    cand, found = candidates(p, src)
     ow = one_way if one_way is None or v is None else dataclasses.replace(one_way, vel=v)
     c = contacts.contacts(p, bodies.half, cand, config.skin, start, ow, surface, walk)
     f, overflow = contacts.link_table(c, cand, config.links, rows=movable)
@@ -89,11 +135,52 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
 
   init = (pos, vel, jnp.zeros((B,), jnp.int32), jnp.zeros((B,), bool), jnp.zeros((n, B), bool),
           jnp.zeros((NUM_DIRECTIONS, n, B), bool))
-  if config.iterations == 1:  # No loop: its carries would be copied in and out.
-    p, v, code, exhausted, crushed, touching = one_pass(0, init)
+  if vel is None:  # `resolve`: positions alone, no closing stage.
+    state = one_pass(0, init) if config.iterations == 1 else lax.fori_loop(
+        0, config.iterations, one_pass, init)
+  elif config.closing == 0:  # No budget: the overlap left is reported, not closed.
+    state = one_pass(0, init) if config.iterations == 1 else lax.fori_loop(
+        0, config.iterations, one_pass, init)
+    left = overlap_left(state[0], state[4], fixed)
+    state = state[:2] + (state[2] | flags.bit(left, status.OVERLAP_LEFT),) + state[3:]
   else:
-    p, v, code, exhausted, crushed, touching = lax.fori_loop(0, config.iterations, one_pass, init)
+    # The closing stage: more passes, from the positions reached (contact axes from the
+    # substep's start, on the velocities the passes left), for the worlds that still
+    # have a pair overlapping by more than the skin, at most `closing` of them; a world
+    # with none left keeps its state, bit for bit. One loop with the passes: one copy
+    # of the pass's code, and a batch with nothing left skips the rest (`lax.cond`).
+    # Closing passes read the substep's candidates, neighbour table and its margin
+    # check included (`NEIGHBOR_MARGIN`), as a second pass does.
+    def body(k, carry):
+      state, need, src = carry
+      main = k < config.iterations
+
+      def run(state, src):
+        new = one_pass(k, state, src)
+        return new, overlap_left(new[0], new[4], src), src
+
+      with jax.named_scope(CLOSING_GATE):  # The work meter's mark: run on main passes.
+        new, left, src = lax.cond(main | batch_any(need), jax.checkpoint(run),
+                                  lambda s, src: (s, jnp.zeros_like(need), src), state, src)
+      take = main | need  # [B]: the worlds this pass is for.
+      state = jax.tree.map(lambda x, y: jnp.where(per_world(take, x), x, y), new, state)
+      return state, jnp.where(take, left, need), src
+
+    carry = (init, jnp.zeros((B,), bool), fixed)
+    if B == 1:  # XLA:CPU keeps a loop's body whole at one world; unrolled, it simplifies.
+      for k in range(config.iterations + config.closing):
+        carry = body(k, carry)
+      state, need, _ = carry
+    else:
+      state, need, _ = lax.fori_loop(0, config.iterations + config.closing, body, carry)
+    state = state[:2] + (state[2] | flags.bit(need, status.OVERLAP_LEFT),) + state[3:]
+  p, v, code, exhausted, crushed, touching = state
   return p, v, code | flags.bit(exhausted, status.DEPTH_EXHAUSTED), crushed, touching
+
+
+def per_world(flag: jax.Array, like: jax.Array) -> jax.Array:
+  """`[B]` bool reshaped to broadcast against `like` (`[..., B]`)."""
+  return flag.reshape((1,) * (like.ndim - 1) + flag.shape)
 
 
 def sensors(bodies: Bodies, pos: jax.Array, config, table: pairs.Neighbors | None = None, *,
