@@ -194,11 +194,15 @@ class Run:
             ""]
 
 
-def write_result(out: pathlib.Path, name: str, lines, run: Run, echo: bool = True) -> pathlib.Path:
+def write_result(out: pathlib.Path, name: str, lines, run: Run | list[str],
+                 echo: bool = True) -> pathlib.Path:
   """Writes `out/name`: `run.header()`, then `lines` (a list of lines or one text).
-  Prints the text too unless `echo` is False. Returns the path."""
+  `run` may also be header lines saved from the run that measured (a result redrawn
+  later from saved data keeps the header of its measurement). Prints the text too
+  unless `echo` is False. Returns the path."""
   body = lines if isinstance(lines, str) else "\n".join(lines)
-  text = "\n".join(run.header()) + "\n" + body.rstrip("\n") + "\n"
+  header = run.header() if isinstance(run, Run) else list(run)
+  text = "\n".join(header) + "\n" + body.rstrip("\n") + "\n"
   out.mkdir(parents=True, exist_ok=True)
   path = out / name
   path.write_text(text)

@@ -36,9 +36,7 @@ import argparse
 import dataclasses
 import functools
 import inspect
-import os
 import sys
-import time
 from collections.abc import Callable
 
 import jax
