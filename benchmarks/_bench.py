@@ -254,30 +254,31 @@ def wall(fn: Callable, *args) -> Callable[[], float]:
 
 @dataclasses.dataclass
 class Rounds:
-  """What `rounds` measured: `seconds[name]`, one figure per round, and `loads[name]`,
-  the 1-minute load average just before each."""
+  """What `rounds` measured: `figures[name]`, one a round (what the measurement
+  returned: seconds for `wall`), and `loads[name]`, the 1-minute load average just
+  before each."""
 
-  seconds: dict[str, list[float]]
+  figures: dict[str, list[float]]
   loads: dict[str, list[float]]
 
   def median(self, name: str) -> float:
-    return statistics.median(self.seconds[name])
+    return statistics.median(self.figures[name])
 
 
 def rounds(measures: dict[str, Callable[[], float]], n: int, progress=None) -> Rounds:
   """Runs every measurement once per round, in order, for `n` rounds: so slow drift of
   a shared machine hits every setting alike, and ratios taken within a round compare
   like with like. Each measurement returns its own figure (seconds; see `wall`).
-  `progress(round, name)` is called before each, if given."""
-  seconds = {k: [] for k in measures}
+  `progress(round, name)` is called after each, if given."""
+  figures = {k: [] for k in measures}
   loads = {k: [] for k in measures}
   for r in range(n):
     for name, measure in measures.items():
+      loads[name].append(load_average())
+      figures[name].append(measure())
       if progress is not None:
         progress(r, name)
-      loads[name].append(load_average())
-      seconds[name].append(measure())
-  return Rounds(seconds, loads)
+  return Rounds(figures, loads)
 
 
 # --- Scenes ----------------------------------------------------------------------------

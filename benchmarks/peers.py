@@ -29,7 +29,7 @@ installs Box2D 2.3, pymunk and Jax2D). Before timing, waits (up to `--wait` s) u
 other benchmark or pytest runs. Writes `results/peers.md`.
 
     python benchmarks/peers.py                         # about 6 minutes on 2 quiet cores
-    python benchmarks/peers.py --v3-python /work/venvs/py312-v3/bin/python   # with Box2D v3
+    python benchmarks/peers.py --v3-python ~/venvs/box2d-v3/bin/python   # with Box2D v3
     python benchmarks/peers.py --quick                 # the room of 64 only
     python benchmarks/peers.py --smoke --out /tmp/x    # N=8, B=2, a few steps: runs, writes
 """
@@ -210,7 +210,7 @@ def measure_rounds(settings: list[Setting], n_rounds: int) -> _bench.Rounds:
   with tqdm(total=n_rounds * len(measures), desc="rounds", unit="window") as bar:
     def progress(r, key):
       s = settings[key[0]]
-      bar.set_postfix_str(f"round {r + 1}: {s.engine} N={s.n} B={s.batch} {key[1]}")
+      bar.set_postfix_str(f"round {r + 1}, done: {s.engine} N={s.n} B={s.batch} {key[1]}")
       bar.update()
     return _bench.rounds(measures, n_rounds, progress)
 
@@ -369,7 +369,7 @@ def table(settings, measured, peers, notes, steps, settle, n_rounds, push, push_
   ]
   for i, s in enumerate(settings):
     for w in s.windows:
-      rs, loads = measured.seconds[i, w], measured.loads[i, w]
+      rs, loads = measured.figures[i, w], measured.loads[i, w]
       note = s.notes
       if s.status is not None:
         note += f"; status {status_names(s.status[0])}"
@@ -426,17 +426,17 @@ def table(settings, measured, peers, notes, steps, settle, n_rounds, push, push_
           continue
         label = (f"room of {n}, settled, jaxchain B={big}{' converge' if converge else ''} over "
                  f"{peer} one thread")
-        lines.append("- " + ratio_line(label, measured.seconds[i, SETTLED],
-                                       measured.seconds[j, SETTLED]))
+        lines.append("- " + ratio_line(label, measured.figures[i, SETTLED],
+                                       measured.figures[j, SETTLED]))
       i = find("jaxchain", n, big)
       if i is not None:
         lines.append("- " + ratio_line(f"room of {n}, from rest, jaxchain B={big} over {peer} one "
-                                       "thread", measured.seconds[i, REST], measured.seconds[j, REST]))
+                                       "thread", measured.figures[i, REST], measured.figures[j, REST]))
     one, batch = find("jaxchain", n), find("jaxchain", n, big)
     if one is not None and batch is not None and big > 1:
       lines.append("- " + ratio_line(f"room of {n}, settled, jaxchain B={big} over B=1 (issue 23 "
-                                     "asks >= 3x at N=64)", measured.seconds[batch, SETTLED],
-                                     measured.seconds[one, SETTLED]))
+                                     "asks >= 3x at N=64)", measured.figures[batch, SETTLED],
+                                     measured.figures[one, SETTLED]))
   return lines
 
 

@@ -96,7 +96,7 @@ def main():
   with tqdm(total=args.rounds * len(compiled), desc="rounds", unit="call") as bar:
     measured = _bench.rounds({name: _bench.wall(fn, w, controls) for name, (fn, w) in compiled.items()},
                              args.rounds, lambda *_: bar.update())
-  times = {name: [t / STEPS for t in ts] for name, ts in measured.seconds.items()}
+  times = {name: [t / STEPS for t in ts] for name, ts in measured.figures.items()}
   write(times, args.batch, out_dir(args), run)
 
 
