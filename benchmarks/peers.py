@@ -28,7 +28,7 @@ Engines that do not import are skipped with a message (`pip install -e .[peers]`
 installs Box2D 2.3, pymunk and Jax2D). Before timing, waits (up to `--wait` s) until no
 other benchmark or pytest runs. Writes `results/peers.md`.
 
-    python benchmarks/peers.py                         # about 6 minutes on 2 quiet cores
+    python benchmarks/peers.py                         # about 7 minutes on 2 quiet cores
     python benchmarks/peers.py --v3-python ~/venvs/box2d-v3/bin/python   # with Box2D v3
     python benchmarks/peers.py --quick                 # the room of 64 only
     python benchmarks/peers.py --smoke --out /tmp/x    # N=8, B=2, a few steps: runs, writes

@@ -338,6 +338,8 @@ def main(argv=None) -> int:
   sys.path.insert(0, str(HERE))
   import _bench  # Imports jax: after --list, which needs none of it.
   run = _bench.Run.start()
+  if args.out is not None:  # The scripts run from the checkout: a relative --out is the caller's.
+    args.out = args.out.resolve()
   out = args.out or RESULTS
   out.mkdir(parents=True, exist_ok=True)
   if args.smoke:
