@@ -6,8 +6,9 @@ Each script runs as `python benchmarks/NAME.py --smoke --out DIR/NAME/out` would
 `__main__`, with that `sys.argv`, from the directory `DIR/NAME`), its stdout and stderr
 going to `DIR/NAME/stdout.txt` and `stderr.txt`, and its exit code (0 for a normal end
 or `sys.exit(0)`, 1 for an exception, whose traceback goes to stderr) to
-`DIR/NAME/result.json`, written as soon as the script ends. `tests/test_benchmarks.py`
-uses it so that the smoke runs share one interpreter: one `import jax` (and torch,
+`DIR/NAME/result.json`, written as soon as the script ends. `refresh.py --smoke` (and
+through it `tests/test_benchmarks.py`) uses it so that the smoke runs share one
+interpreter: one `import jax` (and torch,
 matplotlib, ...) instead of one per script, and the programs that several scripts
 compile (the demo scene's step, the env steps) compiled once.
 """

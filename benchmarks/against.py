@@ -24,11 +24,10 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 
 from tqdm import tqdm
 
-from _bench import ROOT, add_common_args, export_src, machine, out_dir
+from _bench import ROOT, Run, add_common_args, export_src, out_dir, write_result
 
 # `--smoke`: the cheapest demo to compile (no chain hops, no friction, no converging loops).
 SMOKE_DEMO = ["--depth", "0", "--no-converge", "--friction", "0"]
@@ -60,8 +59,7 @@ def main():
   args = add_common_args(parser).parse_args()
   if args.smoke:  # The working tree and HEAD (exported by `git archive`), once each, tiny.
     args.against, args.batch, args.steps, args.rounds = ["HEAD"], 2, 2, 1
-  header = machine()
-  started = time.perf_counter()
+  run = Run.start(src=ROOT / "src")
   demo = ["demo", "--batch", str(args.batch), "--steps", str(args.steps), "--no-progress"]
   if args.smoke:
     demo += SMOKE_DEMO
@@ -75,18 +73,17 @@ def main():
     plan = [(r, name) for r in range(args.rounds) for name in trees]
     for _, name in tqdm(plan, desc="demo runs", unit="run"):
       runs[name].append(run_demo(*trees[name]))
-  write(runs, args, header, time.perf_counter() - started)
+  write(runs, args, run)
 
 
-def write(runs, args, header, wall_s) -> None:
+def write(runs, args, run: Run) -> None:
   med = {name: {k: statistics.median(r[k] for r in rs) for k in FIGURES} for name, rs in runs.items()}
   base = {rev: med[rev]["world_steps"] for rev in args.against}
   lines = [
       "# The demo beside earlier commits",
       "",
-      f"`python benchmarks/against.py{' --smoke' * args.smoke} --against {' '.join(args.against)} --batch {args.batch} "
-      f"--steps {args.steps} --rounds {args.rounds}`, {header}; {wall_s:.0f} s. Each tree runs "
-      f"`jaxchain demo --batch {args.batch} --steps {args.steps} --no-progress` in a fresh "
+      f"Against {' '.join(args.against)}, batch {args.batch}, {args.steps} steps, {args.rounds} "
+      f"rounds. Each tree runs `jaxchain demo --batch {args.batch} --steps {args.steps} --no-progress` in a fresh "
       "interpreter, rounds alternating the trees; medians over rounds.",
       "",
       "| tree | world-steps/s | us per world-step | compile s | "
@@ -97,8 +94,7 @@ def write(runs, args, header, wall_s) -> None:
     ratios = " | ".join(f"{m['world_steps'] / b:.2f}x" for b in base.values())
     lines.append(f"| {name} | {m['world_steps']:.4g} | {1e6 / m['world_steps']:.1f} | "
                  f"{m['compile']:.2f} | {ratios} |")
-  (out_dir(args) / "against.md").write_text("\n".join(lines) + "\n")
-  print("\n".join(lines))
+  write_result(out_dir(args), "against.md", lines, run)
 
 
 if __name__ == "__main__":

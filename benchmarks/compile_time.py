@@ -50,20 +50,7 @@ import numpy as np
 import jaxchain as jc
 from jaxchain import scenes
 
-try:  # The shared --smoke / --out options (benchmarks/_bench.py).
-  from _bench import add_common_args, machine, out_dir
-except ImportError:  # An older _bench: the same two options, here.
-  from _bench import machine
-
-  def add_common_args(parser):
-    parser.add_argument("--smoke", action="store_true", help="tiny sizes: runs and writes")
-    parser.add_argument("--out", type=pathlib.Path,
-                        default=pathlib.Path(__file__).resolve().parent / "results", metavar="DIR")
-    return parser
-
-  def out_dir(args):
-    args.out.mkdir(parents=True, exist_ok=True)
-    return args.out
+from _bench import Run, add_common_args, out_dir, write_result
 
 TASKS = ("push_box", "reach_flag")
 BATCHES = (1, 64, 1024, 4096)
@@ -356,8 +343,7 @@ def main():
     # task at B=2 with its tables, one of the options (the last: compiled with options).
     args.tasks, args.batches, args.demo_batch = args.tasks[:1], [2], 2
     chunk, repeats, args.top, option_names = 2, 1, 5, option_names[-1:]
-  header = machine()
-  started = time.perf_counter()
+  run = Run.start()
   _warm_up()
   plan = ([("demo", args.demo_batch)] if args.demo else []) + [
       (task, batch) for task in args.tasks for batch in args.batches]
@@ -377,7 +363,7 @@ def main():
       tables[name, batch] = where(one, one_args, args.top), kernels(fn, fargs, env_cls, args.top)
     if analyse and args.options and (name == "demo" or name == args.tasks[0]):
       opts[name, batch] = options(fn, fargs, repeats, option_names)
-  write(rows, tables, opts, args, header, time.perf_counter() - started, os.getloadavg()[0])
+  write(rows, tables, opts, args, run)
 
 
 def _row(r: dict) -> str:
@@ -387,16 +373,9 @@ def _row(r: dict) -> str:
           f"{r['stablehlo']} | {r['hlo']} | {r['fusions']} | {r['whiles']} |")
 
 
-def write(rows, tables, opts, args, header, wall_s, load_end) -> None:
-  command = "python benchmarks/compile_time.py" + (" --smoke" if args.smoke else "")
-  if not args.smoke and args.tasks != list(TASKS):
-    command += " --tasks " + " ".join(args.tasks)
-  if not args.smoke and args.batches != list(BATCHES):
-    command += " --batches " + " ".join(map(str, args.batches))
+def write(rows, tables, opts, args, run: Run) -> None:
   lines = [
       "# Compile time",
-      "",
-      f"`{command}`, {header}; load average at the end {load_end:.2f}; {wall_s:.0f} s in all.",
       "",
       "Each program from a cold cache (`jax.clear_caches()`): `jax.jit(f).trace(*args)`, "
       "`.lower()`, `.compile()`, in wall seconds and in CPU seconds of this process (all "
@@ -443,8 +422,7 @@ def write(rows, tables, opts, args, header, wall_s, load_end) -> None:
     lines += ["", "| source line (innermost jaxchain frame; a loop unrolled in Python shows "
               "as one line with many) | eqns |", "|---|---|"]
     lines += [f"| `{k}` | {n} |" for k, n in source]
-  (out_dir(args) / "compile_time.md").write_text("\n".join(lines) + "\n")
-  print("\n".join(lines))
+  write_result(out_dir(args), "compile_time.md", lines, run)
 
 
 if __name__ == "__main__":

@@ -34,14 +34,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
 import functools
 import inspect
-import os
-import pathlib
-import subprocess
 import sys
-import time
 from collections.abc import Callable
 
 import jax
@@ -50,8 +45,8 @@ import numpy as np
 from tqdm import tqdm
 
 import jaxchain as jc
-import peers  # Box2D / pymunk adapters (imports, versions) and the penetration measure.
-from _bench import add_common_args, machine, out_dir
+import _bench  # The Box2D / pymunk adapters, the penetration measure, the result header.
+from _bench import add_common_args, out_dir
 
 INF = np.inf
 DT = 1 / 60
@@ -200,7 +195,7 @@ def random_room(quick: bool, seed: int = 0) -> Scene:
     p = r.pos[:, 4:]
     out = (p[..., 0] < 0) | (p[..., 0] > w) | (p[..., 1] < 0) | (p[..., 1] > h)
     return {"boxes that left the room": str(int(np.sum(np.any(out, axis=0)))),
-            "penetration end": f"{peers.penetration(r.pos[-1:], s)[0]:.2e}"}
+            "penetration end": f"{_bench.penetration(r.pos[-1:], s)[0]:.2e}"}
   return scene(
       "random_room", f"{ROOM_N} unit boxes at random non-overlapping places (seed {seed}) fall "
       f"in a closed static room (interior {w:g} x {h:g}), gravity, friction 0.5. Energy should "
@@ -349,82 +344,24 @@ SCENES = (head_on, free_chain, friction_contrast, edge_fall,
 # Each engine: `name`, `version`, `run(scene) -> Run`.
 
 
-def run_python(scene: Scene, step, state, set_vel) -> Run:
-  """Runs a Python engine through the scene's segments, recording every step.
-  `state() -> (pos [n, 2], vel [n, 2])`, `set_vel(body, (vx, vy))`, `step()`."""
-  pos, vel = [], []
+class Peer:
+  """A Python peer engine (`_bench.PythonPeer`: Box2D 2.3 or pymunk, the adapters of
+  `_peer_worker.py`) run through a scene's segments, recording every step. Box2D:
+  static, kinematic and fixed-rotation dynamic bodies, 8 velocity / 3 position
+  iterations, friction mixed as sqrt(f_a f_b) (each fixture gets the scene's
+  coefficient). pymunk: STATIC, KINEMATIC and dynamic bodies of infinite moment, 10
+  iterations, collision slop 0.1, friction mixed as f_a f_b (each shape gets the square
+  root of the scene's coefficient)."""
 
-  def record():
-    p, v = state()
-    pos.append(p)
-    vel.append(v)
-  record()
-  for steps, changes in scene.segments:
-    for k, v in changes.items():
-      set_vel(k, v)
-    for _ in range(steps):
-      step()
-      record()
-  return Run(np.array(pos, float), np.array(vel, float))
-
-
-class Box2D(peers.Box2D):
-  """pybox2d: static, kinematic and fixed-rotation dynamic bodies, 8 velocity / 3
-  position iterations, no sleeping. Friction mixes as sqrt(f_a f_b): each fixture
-  gets the scene's coefficient."""
+  def __init__(self, peer: _bench.PythonPeer):
+    self.peer, self.name, self.version = peer, peer.name, peer.version
 
   def run(self, scene: Scene) -> Run:
-    world = self.b2.b2World(gravity=scene.gravity)
-    world.SetAllowSleeping(False)
-    bodies = []
-    for k, (p, h, m, v) in enumerate(zip(scene.pos, scene.half, scene.mass, scene.vel)):
-      if k in scene.kinematic:
-        body = world.CreateKinematicBody(position=tuple(p), linearVelocity=tuple(v))
-      elif np.isinf(m):
-        body = world.CreateStaticBody(position=tuple(p))
-      else:
-        body = world.CreateDynamicBody(position=tuple(p), linearVelocity=tuple(v), fixedRotation=True)
-      density = m / (4 * h[0] * h[1]) if np.isfinite(m) else 0.0
-      body.CreatePolygonFixture(box=tuple(h), density=density, friction=scene.friction, restitution=0.0)
-      bodies.append(body)
-
-    def set_vel(k, v):
-      bodies[k].linearVelocity = tuple(v)
-    def state():
-      return [tuple(b.position) for b in bodies], [tuple(b.linearVelocity) for b in bodies]
-    return run_python(scene, lambda: world.Step(DT, 8, 3), state, set_vel)
-
-
-class Pymunk(peers.Pymunk):
-  """pymunk: STATIC, KINEMATIC and dynamic bodies of infinite moment, default 10
-  iterations and collision slop 0.1. Friction mixes as f_a f_b: each shape gets the
-  square root of the scene's coefficient."""
-
-  def run(self, scene: Scene) -> Run:
-    pm = self.pm
-    space = pm.Space()
-    space.gravity = scene.gravity
-    bodies = []
-    for k, (p, h, m, v) in enumerate(zip(scene.pos, scene.half, scene.mass, scene.vel)):
-      if k in scene.kinematic:
-        body = pm.Body(body_type=pm.Body.KINEMATIC)
-      elif np.isinf(m):
-        body = pm.Body(body_type=pm.Body.STATIC)
-      else:
-        body = pm.Body(mass=m, moment=float("inf"))
-      body.position = tuple(p)
-      if body.body_type != pm.Body.STATIC:
-        body.velocity = tuple(v)
-      shape = pm.Poly.create_box(body, tuple(2 * h))
-      shape.friction, shape.elasticity = scene.friction ** 0.5, 0.0
-      space.add(body, shape)
-      bodies.append(body)
-
-    def set_vel(k, v):
-      bodies[k].velocity = tuple(v)
-    def state():
-      return [tuple(b.position) for b in bodies], [tuple(b.velocity) for b in bodies]
-    return run_python(scene, lambda: space.step(DT), state, set_vel)
+    pos, vel = self.peer.record(
+        _bench.peer_scene(scene.pos, scene.half, scene.mass, scene.vel, kinematic=scene.kinematic,
+                          gravity=scene.gravity, friction=scene.friction, dt=DT),
+        scene.segments)
+    return Run(pos, vel)
 
 
 # jaxchain is being moved from physics in the Config to physics in the World:
@@ -498,20 +435,20 @@ class JaxChain:
 
 
 def load_engines() -> tuple[list, list[str]]:
-  engines, skipped = peers.load_peers((Box2D, Pymunk))
-  return [JaxChain()] + engines, skipped
+  engines, skipped = _bench.load_peers(("Box2D", "pymunk"))
+  return [JaxChain()] + [Peer(e) for e in engines], skipped
 
 
 # --- Measures --------------------------------------------------------------------------
 
 
 def penetration(traj: np.ndarray, scene: Scene) -> np.ndarray:
-  """`[t]` largest penetration per state: `peers.penetration` (every pair not both
+  """`[t]` largest penetration per state: `_bench.penetration` (every pair not both
   immovable), or for a scene with one-way bodies (which bodies pass from below and the
   sides) `jc.metrics.max_penetration` (a one-way pair counts with a sink within the
   one-way margin, the overlap the one-way rule resolves)."""
   if not scene.one_way:
-    return peers.penetration(traj, scene)
+    return _bench.penetration(traj, scene)
   world, _ = jaxchain_world(scene)
   pos = jnp.asarray(traj, world.pos.dtype)
   return np.asarray(jax.vmap(lambda p: jc.metrics.max_penetration(world.replace(pos=p)))(pos))
@@ -541,28 +478,11 @@ def measures(scene: Scene, run: Run) -> dict[str, str]:
 # --- Run and output --------------------------------------------------------------------
 
 
-def jaxchain_source() -> str:
-  """Which jaxchain this run imported: the commit of its checkout and whether its
-  source had uncommitted changes."""
-  src = pathlib.Path(jc.__file__).resolve().parent
-
-  def git(*args):
-    out = subprocess.run(["git", "-C", str(src), *args], capture_output=True, text=True)
-    return out.stdout.strip() if out.returncode == 0 else ""
-  commit = git("rev-parse", "--short", "HEAD")
-  if not commit:
-    return f"imported from {src} (not a git checkout)"
-  dirty = git("status", "--porcelain", "--", ".")
-  return (f"commit {commit} ({'WITH uncommitted changes in' if dirty else 'clean'} "
-          f"src/jaxchain), imported from {src}")
-
-
 def main():
   parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--quick", action="store_true", help="shorter room and chain runs")
   args = add_common_args(parser).parse_args()
-  t0 = time.perf_counter()
-  host = machine()
+  run_ = _bench.Run.start()
   engines, skipped = load_engines()
   for line in skipped:
     print(line, file=sys.stderr)
@@ -580,26 +500,17 @@ def main():
         rows[s.name].append({"engine": e.name, **measures(s, run), **s.figures(s, run)})
         messages += [f"{s.name}: {m}" for m in run.messages]
         bar.update()
-  wall_s = time.perf_counter() - t0
-  env = os.environ.get("PYTHONPATH")
-  command = (f"PYTHONPATH={env} " if env else "") + "python benchmarks/conservation.py" + (
-      " --smoke" if args.smoke else " --quick" if args.quick else "")
-  write(command, host, engines, skipped, scenes, rows, messages, wall_s, out_dir(args))
+  write(run_, engines, skipped, scenes, rows, messages, out_dir(args))
 
 
-def write(command, host, engines, skipped, scenes, rows, messages, wall_s, out) -> None:
+def write(run_, engines, skipped, scenes, rows, messages, out) -> None:
   api = ("`World.create(..., friction=, gravity=)` + `Config.for_world(world)`" if WORLD_PHYSICS
          else "`Config.for_world(world, gravity=, friction=)` (the World.create of this commit "
               "takes no physics)")
   lines = [
       "# Physics fidelity: momentum, energy, riders, crushing",
       "",
-      f"`{command}`, {datetime.date.today().isoformat()}, run time {wall_s:.0f} s (compiles "
-      "included).",
-      "",
-      f"Machine: {host}.",
-      "",
-      f"jaxchain: {jaxchain_source()}; built through {api}.",
+      f"Run time in the header: compiles included. jaxchain built through {api}.",
       "",
       "Engines: " + "; ".join(e.version for e in engines) + ".",
       "",
@@ -634,8 +545,7 @@ def write(command, host, engines, skipped, scenes, rows, messages, wall_s, out) 
     lines.append("")
   lines += ["## jaxchain `jc.check` messages", ""]
   lines += [f"- {m}" for m in messages] or ["- none"]
-  (out / "conservation.md").write_text("\n".join(lines) + "\n")
-  print("\n".join(lines))
+  _bench.write_result(out, "conservation.md", lines, run_)
 
 
 if __name__ == "__main__":

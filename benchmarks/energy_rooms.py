@@ -23,8 +23,6 @@ step and `jc.metrics.max_penetration` before it:
 from __future__ import annotations
 
 import argparse
-import datetime
-import pathlib
 import time
 
 import jax
@@ -32,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxchain as jc
-from _bench import machine
+import _bench
 
 INF = np.inf
 G = 9.81
@@ -115,24 +113,17 @@ def measure(name, seed, halves, speed, kw, rooms: int, steps: int) -> dict:
 def main():
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--smoke", action="store_true", help="2 rooms x 10 steps, one setting")
-  parser.add_argument("--out", type=pathlib.Path,
-                      default=pathlib.Path(__file__).resolve().parent / "results",
-                      help="directory for energy_rooms.md")
-  args = parser.parse_args()
+  args = _bench.add_common_args(parser).parse_args()
+  run = _bench.Run.start()
   rooms, steps = (2, 10) if args.smoke else (40, 90)
   settings = SETTINGS[:1] if args.smoke else SETTINGS
   rows = [measure(*s, rooms=rooms, steps=steps) for s in settings]
   cols = list(rows[0])
-  command = "python benchmarks/energy_rooms.py" + (" --smoke" if args.smoke else "")
   lines = ["# Energy in random closed rooms", "",
-           f"`{command}`, {datetime.date.today().isoformat()}. Machine: {machine()}.", "",
            __doc__.split("\n\n")[1].replace("\n", " "), "", __doc__.split("\n\n")[2], "",
            "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
   lines += ["| " + " | ".join(r[c] for c in cols) + " |" for r in rows]
-  args.out.mkdir(parents=True, exist_ok=True)
-  (args.out / "energy_rooms.md").write_text("\n".join(lines) + "\n")
-  print("\n".join(lines))
+  _bench.write_result(_bench.out_dir(args), "energy_rooms.md", lines, run)
 
 
 if __name__ == "__main__":

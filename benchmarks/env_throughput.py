@@ -16,7 +16,6 @@ random policy's successes). Writes `results/env_throughput.md`.
 from __future__ import annotations
 
 import argparse
-import time
 
 import jax
 import jax.numpy as jnp
@@ -24,7 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 import jaxchain as jc
-from _bench import add_common_args, compile_and_time, machine, out_dir
+from _bench import Run, add_common_args, compile_and_time, out_dir, write_result
 
 TASKS = ("push_box", "reach_flag")
 BATCHES = (1, 64, 1024, 4096)
@@ -71,28 +70,19 @@ def main():
   if args.smoke:
     # One task (the first asked for), 2 envs, 4 steps a call: the env's whole path, once.
     args.tasks, args.batches, env_steps, repeats = args.tasks[:1], [2], 8, 1
-  header = machine()
-  started = time.perf_counter()
+  run = Run.start()
   rows = []
   plan = [(t, b) for t in args.tasks for b in args.batches]
   with tqdm(plan, desc="env throughput", unit="setting") as bar:
     for task, batch in bar:
       bar.set_postfix(task=task, B=batch)
       rows.append(setting(task, batch, env_steps, repeats, min_steps=4 if args.smoke else 10))
-  write(rows, args, header, time.perf_counter() - started)
+  write(rows, args, run)
 
 
-def write(rows, args, header, wall_s) -> None:
-  command = "python benchmarks/env_throughput.py" + (" --smoke" if args.smoke else
-                                                     " --quick" if args.quick else "")
-  if args.tasks != list(TASKS) and not args.smoke:
-    command += " --tasks " + " ".join(args.tasks)
-  if args.batches != list(BATCHES) and not args.smoke:
-    command += " --batches " + " ".join(map(str, args.batches))
+def write(rows, args, run: Run) -> None:
   lines = [
       "# Environment throughput (random policy)",
-      "",
-      f"`{command}`, {header}; {wall_s:.0f} s in all.",
       "",
       "Timed: a jitted `lax.scan` of T steps of `jax.vmap(env.step)` over B envs (auto-reset "
       "included), random actions from `env.action_space(params).sample` drawn inside the scan, "
@@ -114,8 +104,7 @@ def write(rows, args, header, wall_s) -> None:
     best = max(one, key=lambda r: r["env_steps"])
     lines.append(f"- {task}: highest {best['env_steps']:.3g} env-steps/s at B={best['batch']}, "
                  f"{best['env_steps'] / one[0]['env_steps']:.1f}x the rate at B={one[0]['batch']}")
-  (out_dir(args) / "env_throughput.md").write_text("\n".join(lines) + "\n")
-  print("\n".join(lines))
+  write_result(out_dir(args), "env_throughput.md", lines, run)
 
 
 if __name__ == "__main__":

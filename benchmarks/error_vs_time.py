@@ -15,9 +15,11 @@ K=8, each with the link table `Config.for_world` sizes for the scene. K=0 is pla
 pairwise Jacobi (no chain propagation). The seed's old sequential pairwise system (NumPy, one world
 at a time, 1 to 32 sweeps) is the order-dependent baseline, timed per world.
 
-Writes `results/error_vs_time.md` (a table per scene family) and
+Writes `results/error_vs_time.md` (a table per scene family),
 `results/error_vs_time.png` (log-log error against time per world-step, one line per
-method, Pareto front marked).
+method, Pareto front marked) and `results/error_vs_time.json` (the rows, and the
+header the table is redrawn with by `--replot`); `--quick` writes
+`error_vs_time_quick.*` instead, beside the full sweep's.
 
     python benchmarks/error_vs_time.py           # about 30 minutes on 2 cores
     python benchmarks/error_vs_time.py --quick   # fewer scenes and settings
@@ -36,7 +38,7 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import metrics, reference, scenes
-from _bench import add_common_args, compile_and_time, machine, median_time, out_dir
+from _bench import Run, add_common_args, compile_and_time, median_time, out_dir, write_result
 
 DEPTHS = (0, 1, 2, 4, 8, 16, 32, 64)
 ITERATIONS = (1, 2, 4, 8, 16, 32)
@@ -139,14 +141,16 @@ def main():
   parser.add_argument("--batch", type=int, default=64, help="worlds per timed call (default 64)")
   parser.add_argument("--repeats", type=int, default=5)
   parser.add_argument("--replot", action="store_true",
-                      help="rewrite the table and plot from error_vs_time.json in --out, no run")
+                      help="rewrite the table and plot from error_vs_time.json (with --quick: "
+                           "error_vs_time_quick.json) in --out, no run")
   args = add_common_args(parser).parse_args()
   out = out_dir(args)
   if args.replot:
-    saved = json.loads((out / "error_vs_time.json").read_text())
-    write(saved["rows"], argparse.Namespace(**{"smoke": False, **saved["args"], "out": out}))
+    saved = json.loads((out / f"{stem(args)}.json").read_text())
+    write(saved["rows"], argparse.Namespace(**{"smoke": False, **saved["args"], "out": out}),
+          saved.get("header") or ["commit unknown (saved before results named their commit)", ""])
     return
-  args.machine = machine()
+  run = Run.start()
   if args.smoke:
     args.batch, args.repeats = 2, 1
   fams = families(args.quick, args.smoke)
@@ -177,11 +181,17 @@ def main():
                          iterations=sweeps, substeps=1, time=t,
                          **score(scene, pos, want, scene.pos)))
         bar.update()
-  args.wall_s = time.perf_counter() - started
-  saved = {k: v for k, v in vars(args).items() if k != "out"}  # Not JSON; not a result.
-  (out / "error_vs_time.json").write_text(json.dumps(dict(args=saved, rows=rows), indent=0))
-  write(rows, args)
-  print(f"wall time {args.wall_s:.0f} s")
+  header = run.header()
+  saved = {k: v for k, v in vars(args).items() if k not in ("out", "replot")}  # Not JSON.
+  (out / f"{stem(args)}.json").write_text(json.dumps(dict(args=saved, header=header, rows=rows),
+                                                     indent=0))
+  write(rows, args, header)
+  print(f"wall time {time.perf_counter() - started:.0f} s")
+
+
+def stem(args) -> str:
+  """The results' file name without suffix: `--quick` writes beside the full sweep."""
+  return "error_vs_time_quick" if args.quick and not args.smoke else "error_vs_time"
 
 
 def error_of(r) -> float:
@@ -225,15 +235,11 @@ def summary(rows) -> list[str]:
   return lines + [""]
 
 
-def write(rows, args) -> None:
+def write(rows, args, header: list[str]) -> None:
   out = out_dir(args)
-  cmd = "python benchmarks/error_vs_time.py" + (" --smoke" if args.smoke else
-                                                " --quick" if args.quick else "")
-  wall = f"; {args.wall_s / 60:.0f} minutes in all" if getattr(args, "wall_s", None) else ""
   lines = [
       "# Error against run time", "",
-      f"`{cmd}`, {args.machine}; batch {args.batch}{wall}. "
-      "One step with zero gravity and velocity (pure overlap resolution), time per world-step "
+      f"Batch {args.batch}. One step with zero gravity and velocity (pure overlap resolution), time per world-step "
       "under jit + vmap, compile excluded. Error = max(residual penetration, distance to the "
       "reference). `*` marks the Pareto front (nothing both faster and more accurate). The old "
       "sequential system is plain Python/NumPy on one world: its times are not comparable in "
@@ -250,14 +256,14 @@ def write(rows, args) -> None:
           f"{r['max_pen']:.2e} | {r['mean_pen']:.2e} | {r['ref_dist']:.2e} | {r['com_drift']:.2e} | "
           f"{r['fixed_moved']:.0e} | {'*' if id(r) in front else ''} |")
     lines.append("")
-  (out / "error_vs_time.md").write_text("\n".join(lines))
-  plot(rows, out)
-  print("\n".join(lines[:8]))
+  write_result(out, f"{stem(args)}.md", lines, header, echo=False)
+  plot(rows, out / f"{stem(args)}.png")
+  print("\n".join(header + lines[:8]))
   moved = max(r["fixed_moved"] for r in rows)
   print(f"largest movement of an immovable body over all settings: {moved}")
 
 
-def plot(rows, out) -> None:
+def plot(rows, path) -> None:
   import matplotlib
   matplotlib.use("Agg")
   import matplotlib.pyplot as plt
@@ -288,7 +294,7 @@ def plot(rows, out) -> None:
   fig.legend(handles, labels, loc="lower center", ncol=6, fontsize=7)
   fig.suptitle(f"jaxchain: error against time per world-step (errors below {floor:g} drawn at {floor:g})")
   fig.tight_layout(rect=(0, 0.06, 1, 0.97))
-  fig.savefig(out / "error_vs_time.png", dpi=110)
+  fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":

@@ -35,35 +35,14 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 import jaxchain as jc
 from jaxchain import broadphase, core, scenes
-from _bench import machine
-
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-
-
-def room(n: int, settle: int) -> tuple[jc.World, jc.Config]:
-  s = scenes.lattice_room(n, 0)
-  world = jc.World.create(s.pos, s.half, s.mass, friction=0.5)
-  cfg = jc.Config.for_world(world)
-  if settle:
-    world, _ = jc.rollout(world, cfg, settle)
-  return world, cfg
-
-
-def demo(settle: int) -> tuple[jc.World, jc.Config]:
-  world = scenes.platformer().scene.world(friction=0.3)
-  cfg = jc.Config.for_world(world)
-  if settle:
-    world, _ = jc.rollout(world, cfg, settle, controls=np.zeros((14, 2), np.float32))
-  return world, cfg
+import _bench
+from _bench import demo_world, room_world
 
 
 def rollout_fn(cfg: jc.Config, steps: int):
@@ -95,13 +74,8 @@ def timed(fns: dict, args: dict, rounds: int) -> dict:
   for k, fn in fns.items():
     compiled[k] = jax.jit(fn).lower(args[k]).compile()
     jax.block_until_ready(compiled[k](args[k]))
-  times = {k: [] for k in fns}
-  for _ in range(rounds):
-    for k in fns:
-      t0 = time.perf_counter()
-      jax.block_until_ready(compiled[k](args[k]))
-      times[k].append(time.perf_counter() - t0)
-  return {k: statistics.median(v) for k, v in times.items()}
+  measured = _bench.rounds({k: _bench.wall(compiled[k], args[k]) for k in fns}, rounds)
+  return {k: measured.median(k) for k in fns}
 
 
 CHILD = """
@@ -124,10 +98,7 @@ for _ in range(rounds):
 def against(rev: str, b: int, steps: int, settle: int, rounds: int) -> list[float]:
   """Seconds per room rollout of commit `rev`, from a child interpreter."""
   with tempfile.TemporaryDirectory() as tmp:
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "src"], check=True,
-                             capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-    env = dict(os.environ, PYTHONPATH=str(pathlib.Path(tmp) / "src"))
+    env = dict(os.environ, PYTHONPATH=str(_bench.export_src(rev, pathlib.Path(tmp))))
     out = subprocess.run([sys.executable, "-c", CHILD, str(b), str(steps), str(settle),
                           str(rounds)], env=env, check=True, capture_output=True, text=True,
                          cwd=tmp).stdout
@@ -137,10 +108,7 @@ def against(rev: str, b: int, steps: int, settle: int, rounds: int) -> list[floa
 def main():
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--smoke", action="store_true",
-                      help="tiny sizes, seconds: checks that the script runs and writes its table")
-  parser.add_argument("--out", type=pathlib.Path, default=RESULTS, metavar="DIR",
-                      help="directory for neighbors.md (default benchmarks/results)")
+  _bench.add_common_args(parser)
   parser.add_argument("--rounds", type=int, default=5)
   parser.add_argument("--against", default=None, metavar="REV",
                       help="also time the room rollout of this commit (git archive)")
@@ -150,15 +118,12 @@ def main():
   settle = 0 if smoke else 120
   steps = 1 if smoke else 30
   batches = (2,) if smoke else (256, 1024)
-  started = time.perf_counter()
-  header = machine()
+  run = _bench.Run.start()
   lines = ["# Neighbour tables against dense pairs and the grid", "",
-           f"`python benchmarks/neighbors.py{' --smoke' * smoke}"
-           f"{f' --against {args.against}' if args.against else ''}`, {header}. "
            f"Medians of {rounds} rounds alternating the settings, compile excluded."]
 
   # Room of 64: rollouts.
-  world, cfg = room(16 if smoke else 64, settle)
+  world, cfg = room_world(16 if smoke else 64, settle)
   if cfg.neighbors is None:  # The smoke room is small: force a table to run its path.
     cfg = cfg.replace(neighbors=8, margin=0.25)
   dense = cfg.replace(neighbors=None, margin=0.0)
@@ -196,7 +161,7 @@ def main():
                  f"{per['pair ' + k] / per['step ' + k]:.0%} |")
 
   # Demo scene.
-  world, cfg = demo(0 if smoke else 60)
+  world, cfg = demo_world(0 if smoke else 60)
   b = batches[-1]
   ws = jc.stack([world] * b)
   n = world.num_bodies
@@ -233,11 +198,7 @@ def main():
               + (f", row {c.grid.row_size}" if c.uses_grid(n) else ""))
       lines.append(f"| {n} | {b} | {k}: {what} | {t[k] * 1e9 / (b * n * gsteps):.0f} |")
 
-  lines += ["", f"Wall time {time.perf_counter() - started:.0f} s; 1-min load at the end "
-            f"{os.getloadavg()[0]:.2f}."]
-  args.out.mkdir(parents=True, exist_ok=True)
-  (args.out / "neighbors.md").write_text("\n".join(lines) + "\n")
-  print("\n".join(lines))
+  _bench.write_result(_bench.out_dir(args), "neighbors.md", lines, run)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ import csv
 import time
 
 import numpy as np
+import stable_baselines3
 import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
@@ -125,13 +126,14 @@ def main(argv=None) -> int:
     args.num_envs, args.n_steps, args.timesteps = 4, 64, 2048
     args.throughput_steps, args.eval_episodes = 10, 4
     params_kw["max_steps"] = 64
+  run = _bench.Run.start()
   out = _bench.out_dir(args)
   torch.set_num_threads(1)  # The jitted env keeps the other core.
   kwargs = dict(params_kw)
   if args.level:
     kwargs["levels"] = [args.level]
   env, params = jc.env.make(args.env, **kwargs)
-  machine = f"{_bench.machine()}, torch {torch.__version__}"
+  machine = f"torch {torch.__version__}, stable-baselines3 {stable_baselines3.__version__}"
   print(f"{machine}; {env!r}", flush=True)
 
   n = args.num_envs
@@ -170,7 +172,7 @@ def main(argv=None) -> int:
       f", {k}={v}" for k, v in params_kw.items())
   last = rows[-1] if rows else {"success": float("nan"), "return": float("nan")}
   table = "\n".join([
-      f"# Stable-Baselines3 PPO on `SB3VecEnv` (`benchmarks/ppo_sb3.py`)", "",
+      "# Stable-Baselines3 PPO on `SB3VecEnv` (`benchmarks/ppo_sb3.py`)", "",
       f"{machine}.{' SMOKE RUN: the figures mean nothing.' if args.smoke else ''}", "",
       f"Task: {label}; {n} envs; PPO(\"MlpPolicy\", n_steps={args.n_steps}, "
       f"batch_size={n * args.n_steps // 4}, learning_rate={args.lr}, ent_coef={args.ent_coef}, "
@@ -191,7 +193,7 @@ def main(argv=None) -> int:
       f"**{sampled:.0%}**, mean return {sampled_ret:.2f} |", "",
       "The learning curve: `ppo_sb3_curve.csv` (one row per rollout: SB3's means over the "
       "last 100 episodes) and `ppo_sb3_curve.png`.", ""])
-  (out / "ppo_sb3.md").write_text(table)
+  _bench.write_result(out, "ppo_sb3.md", table, run, echo=False)
   with open(out / "ppo_sb3_curve.csv", "w", newline="") as f:
     w = csv.DictWriter(f, fieldnames=list(Curve.FIELDS))
     w.writeheader()

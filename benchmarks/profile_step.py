@@ -26,18 +26,16 @@ import glob
 import pathlib
 import re
 import tempfile
-import statistics
 import time
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from tqdm import tqdm
 
 import jaxchain as jc
-from jaxchain import core, scenes
-from _bench import add_common_args, machine, median_time, out_dir
-from peers import room
+from jaxchain import core
+import _bench
+from _bench import add_common_args, demo_world, out_dir, room_world
 
 
 
@@ -78,17 +76,11 @@ def stages(cfg: jc.Config) -> dict:
 
 
 def scene_worlds(name: str, batch: int, settle: int = 120) -> tuple[jc.World, jc.Config]:
+  """`batch` copies of a settled scene: `room<N>` (the room of N boxes) or the demo."""
   if name.startswith("room"):
-    n = int(name[4:])
-    s = room(n)
-    world = jc.World.create(s.pos, s.half, s.mass, friction=0.5)
-    cfg = jc.Config.for_world(world)
-    if settle:
-      world, _ = jc.rollout(world, cfg, settle)  # Settle: the boxes fall and stack.
+    world, cfg = room_world(int(name[4:]), settle)  # Settled: the boxes fall and stack.
   else:
-    world = scenes.platformer().scene.world(friction=0.3)
-    cfg = jc.Config.for_world(world)
-    world, _ = jc.rollout(world, cfg, 60, controls=np.zeros((14, 2), np.float32))
+    world, cfg = demo_world(60)
   return jc.stack([world] * batch), cfg
 
 
@@ -135,8 +127,7 @@ def main():
   scenes_ = ["room64", "platformer"]
   if args.smoke:  # One small room, unsettled; every stage and the trace still run.
     args.batch, args.repeats, scenes_ = 2, 1, ["room8"]
-  started = time.perf_counter()
-  header = machine()
+  run = _bench.Run.start()
   tables = {}
   for name in tqdm(scenes_, desc="scenes", unit="scene"):
     worlds, cfg = scene_worlds(name, args.batch, settle=0 if args.smoke else 120)
@@ -148,22 +139,19 @@ def main():
       jax.block_until_ready(compiled[stage](worlds))  # Warm-up.
       compiled[stage] = (compiled[stage], compiled_s)
     # Rounds interleave the stages, so slow drift in the machine hits them all alike.
-    times = {stage: [] for stage in compiled}
-    for _ in range(args.repeats):
-      for stage, (fn, _) in compiled.items():
-        times[stage].append(median_time(lambda: jax.block_until_ready(fn(worlds)), 1)[1])
-    rows = [(stage, statistics.median(times[stage]), compiled[stage][1]) for stage in compiled]
+    times = _bench.rounds({stage: _bench.wall(fn, worlds) for stage, (fn, _) in compiled.items()},
+                          args.repeats)
+    rows = [(stage, times.median(stage), compiled[stage][1]) for stage in compiled]
     full = compiled[list(compiled)[-1]][0]  # The full step, as compiled for its row.
     tables[name] = (cfg, int(worlds.pos.shape[1]), rows,
                     op_shares(full, worlds, calls=1 if args.smoke else 3))
-  write(tables, args, header, time.perf_counter() - started)
+  write(tables, args, run)
 
 
-def write(tables, args, header, wall_s) -> None:
+def write(tables, args, run) -> None:
   lines = [
       "# Where a step's time goes",
       "",
-      f"`python benchmarks/profile_step.py --batch {args.batch}{' --smoke' * args.smoke}`, {header}; {wall_s:.0f} s. "
       f"Each row: one jitted call of the batch-minor core over {args.batch} identical settled worlds, "
       f"median of {args.repeats} rounds that time every stage once in turn, compile excluded. Each row adds stages to the one before, "
       "so the difference is what a stage costs.",
@@ -202,8 +190,7 @@ def write(tables, args, header, wall_s) -> None:
       "the status bits.",
       "Differences smaller than the run-to-run noise (a few percent) can come out negative.",
   ]
-  (out_dir(args) / "profile.md").write_text("\n".join(lines) + "\n")
-  print("\n".join(lines))
+  _bench.write_result(out_dir(args), "profile.md", lines, run)
 
 
 if __name__ == "__main__":

@@ -59,7 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxchain as jc
-from _bench import add_common_args, machine, out_dir
+from _bench import Run, add_common_args, out_dir, write_result
 from jaxchain import drawing
 
 SIZES = ((64, 64), (96, 160))
@@ -175,8 +175,7 @@ def main():
   repeats = args.repeats
   if args.smoke:
     plan, repeats = [(first, (16, 16), 2)], 1
-  header = machine()
-  started = time.perf_counter()
+  run = Run.start()
   rows = []
   for scene, size, batch in plan:
     rows.append(setting(scene, size, batch, repeats))
@@ -189,7 +188,7 @@ def main():
     print(json.dumps(rows))
     return
   wide = wide_rows(args, repeats)
-  write(rows, wide, args, header, time.perf_counter() - started)
+  write(rows, wide, args, run)
 
 
 def wide_rows(args, repeats) -> list[dict]:
@@ -230,15 +229,12 @@ def _avx512() -> bool:
     return False
 
 
-def write(rows, wide, args, header, wall_s) -> None:
-  command = "python benchmarks/render_throughput.py" + (" --smoke" if args.smoke else "")
-  if os.environ.get("XLA_FLAGS"):
-    command = f"XLA_FLAGS='{os.environ['XLA_FLAGS']}' {command}"
+def write(rows, wide, args, run: Run) -> None:
+  flags = os.environ.get("XLA_FLAGS")
   lines = [
       "# Render throughput (`jc.render`)",
       "",
-      f"`{command}`, {header}; {wall_s:.0f} s in all.",
-      "",
+  ] + ([f"Run with `XLA_FLAGS='{flags}'`.", ""] if flags else []) + [
       "Timed: one jitted `jc.render(worlds, size, bounds, player=0)` on a batch of B worlds, "
       f"compiled with `drawing.CPU_OPTIONS` ({dict(drawing.CPU_OPTIONS)}: what a direct call "
       "uses); compile apart; median of interleaved calls, wall clock and CPU time of the "
@@ -260,8 +256,7 @@ def write(rows, wide, args, header, wall_s) -> None:
             "threads, which moves much less with the machine's load than the wall clock does. "
             "On a quiet machine the wall-clock rate is about this figure times the number of "
             "cores a call keeps busy (1 to 2 here)."]
-  (out_dir(args) / "render_throughput.md").write_text("\n".join(lines) + "\n")
-  print("\n".join(lines))
+  write_result(out_dir(args), "render_throughput.md", lines, run)
 
 
 if __name__ == "__main__":

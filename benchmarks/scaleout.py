@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import datetime
 import importlib.util
 import json
 import os
@@ -202,7 +201,7 @@ def main(argv=None) -> int:
   parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
   parser.add_argument("--scene", default=None, help=argparse.SUPPRESS)
   sys.path.insert(0, str(HERE))
-  from _bench import add_common_args, machine, out_dir  # Imports jax; starts no backend.
+  from _bench import Run, add_common_args, out_dir, write_result  # Imports jax; starts no backend.
 
   args = add_common_args(parser).parse_args(argv)
   if args.worker:
@@ -217,8 +216,7 @@ def main(argv=None) -> int:
   variants = [tuple(v.split("=", 1)) for v in args.variant] or [("jaxchain as importable", None)]
   settings = [(scene, MODES[code.strip()]) for scene in args.scenes.split(",")
               for code in args.modes.split(",")]
-  load0 = os.getloadavg()[0]
-  t0 = time.perf_counter()
+  run = Run.start(src=variants[0][1] and pathlib.Path(variants[0][1]))
   runs = {(label, scene, mode): [] for label, _ in variants for scene, mode in settings}
   for k in range(rounds):
     for scene, mode in settings:
@@ -228,19 +226,15 @@ def main(argv=None) -> int:
         runs[label, scene, mode].append(row)
         shown = row.get("error") or f"{row['world_steps_per_s']:.4g} world-steps/s"
         print(f"round {k + 1}/{rounds} {label[:24]:24s} {scene:7s} {mode:18s} {shown}", flush=True)
-  total = time.perf_counter() - t0
-  body = [f"{datetime.date.today()}, {total:.0f} s in all; 1-min load average {load0:.2f} at the "
-          f"start, {os.getloadavg()[0]:.2f} at the end; B = {batch}; {rounds} rounds over every "
-          f"setting (interleaved), best round shown; each round the median of {args.repeats} calls.", ""]
+  body = [f"B = {batch}; {rounds} rounds over every setting (interleaved), best round shown; "
+          f"each round the median of {args.repeats} calls.", ""]
   for label, src in variants:
     rows = [best(runs[label, scene, mode]) for scene, mode in settings]
     body += [f"## {label}", ""] + ([f"Workers on `{src}`.", ""] if src else []) + table(rows) + [""]
   intro = [
       "# Scale-out: one batch over devices and processes", "",
-      f"`python benchmarks/scaleout.py{' --smoke' * args.smoke}`, {machine()}.", "",
       __doc__.split("\n\n", 1)[1].split("\n\n    python")[0].strip(), ""]
-  path = out_dir(args) / "scaleout.md"
-  path.write_text("\n".join(intro + body))
+  path = write_result(out_dir(args), "scaleout.md", intro + body, run, echo=False)
   print(f"wrote {path}")
   return 0
 

@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import scenes
-from _bench import add_common_args, compile_and_time, loglog, machine, out_dir
+from _bench import Run, add_common_args, compile_and_time, loglog, out_dir, write_result
 
 STEPS = 10
 
@@ -43,6 +43,7 @@ def main():
   parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--quick", action="store_true", help="N up to 1024, fewer repeats")
   args = add_common_args(parser).parse_args()
+  run = Run.start()
   sizes = [64, 128, 256, 512, 1024] if args.quick else [64, 128, 256, 512, 1024, 2048, 4096]
   repeats = 3 if args.quick else 5
   # (kind, batch, largest n): dense is O(n^2) in time and memory, so it stops earlier.
@@ -53,14 +54,14 @@ def main():
   rows = []
   for n, b, k in tqdm(settings, desc="scaling", unit="setting"):
     rows.append(time_setting(n, b, k, repeats))
-  write(rows, out_dir(args))
+  write(rows, out_dir(args), run)
 
 
-def write(rows: list[dict], out) -> None:
+def write(rows: list[dict], out, run: Run) -> None:
   lines = [
       "# Grid against dense: time per step over bodies per world",
       "",
-      f"`python benchmarks/scaling.py`, {machine()}. Scene: `scenes.box_room` "
+      "Scene: `scenes.box_room` "
       "(constant density, long floor/ceiling/walls), gravity, friction 0.3, depth 4, 1 iteration, "
       "`Config.for_world` for the rest (the link table). "
       f"Median of repeats of a jitted, vmapped {STEPS}-step rollout, compile excluded.",
@@ -82,9 +83,8 @@ def write(rows: list[dict], out) -> None:
     faster = [n for n, g, d in both if g < d]
     lines.append(f"- B={b}: grid faster from N={min(faster)}" if faster
                  else f"- B={b}: dense faster at every N measured")
-  (out / "scaling.md").write_text("\n".join(lines) + "\n")
+  write_result(out, "scaling.md", lines, run)
   plot(rows, out)
-  print("\n".join(lines))
 
 
 def plot(rows: list[dict], out) -> None:

@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import levels
-from _bench import add_common_args, machine, out_dir
+from _bench import Run, add_common_args, out_dir, write_result
 
 DATA = pathlib.Path(__file__).resolve().parent.parent / "tests" / "data" / "sokoban"
 STEP = {"l": (0, -1), "r": (0, 1), "d": (1, 0), "u": (-1, 0)}
@@ -114,23 +114,19 @@ def main():
     data, args.batch = data[:3], 3
   ordered = sorted(data, key=lambda d: (d[1].num_bodies, d[0]))
   batches = [ordered[k:k + args.batch] for k in range(0, len(ordered), args.batch)]
-  header = machine()
-  started = time.perf_counter()
+  run = Run.start()
   rows = []
   for batch in tqdm(batches, desc="sokoban replay", unit="batch"):
     rows.append(batch_run(batch))
-  write(rows, args, header, time.perf_counter() - started)
+  write(rows, args, run)
 
 
-def write(rows, args, header, wall_s) -> None:
-  command = "python benchmarks/sokoban_replay.py" + (" --smoke" if args.smoke else "")
+def write(rows, args, run: Run) -> None:
   total = {k: sum(r[k] for r in rows) for k in ("levels", "moves", "pushes", "solved", "exact",
                                                  "padded", "physics")}
   run_s = sum(r["run_s"] for r in rows)
   lines = [
       "# Sokoban replay: published Microban solutions through SokobanMoves",
-      "",
-      f"`{command}`, {header}; {wall_s:.0f} s in all.",
       "",
       "Each batch (levels sorted by body count) is one env (`jc.env.make(task, dt=1/64)`, "
       "`SokobanMoves()`: 5 physics steps per move) and one jitted `jc.env.make_replay` (a "
@@ -155,8 +151,7 @@ def write(rows, args, header, wall_s) -> None:
       f"{total['padded']} padded env steps, {total['physics']} world-steps of physics, in "
       f"{run_s:.1f} s of runs.",
   ]
-  (out_dir(args) / "sokoban_replay.md").write_text("\n".join(lines) + "\n")
-  print("\n".join(lines))
+  write_result(out_dir(args), "sokoban_replay.md", lines, run)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import time
 
 import jax
 import jax.numpy as jnp
@@ -26,6 +25,7 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import broadphase, scenes
+import _bench
 from _bench import add_common_args, out_dir
 
 STEPS = 20
@@ -81,6 +81,7 @@ def main():
   parser.add_argument("--batch", type=int, default=256)
   parser.add_argument("--rounds", type=int, default=5)
   args = add_common_args(parser).parse_args()
+  run = _bench.Run.start()
   if args.smoke:
     args.batch, args.rounds = 2, 1
   worlds, controls = build(args.batch)
@@ -92,22 +93,19 @@ def main():
     fn = jax.jit(jax.vmap(lambda w, u, cfg=cfg: jc.rollout(w, cfg, STEPS, u)[0]))
     compiled[name] = (fn.lower(w, controls).compile(), w)
     jax.block_until_ready(compiled[name][0](w, controls))
-  times = {name: [] for name in compiled}
-  for _ in tqdm(range(args.rounds), desc="rounds", unit="round"):
-    for name, (fn, w) in compiled.items():
-      t0 = time.perf_counter()
-      jax.block_until_ready(fn(w, controls))
-      times[name].append((time.perf_counter() - t0) / STEPS)
-  write(times, args.batch, out_dir(args), " --smoke" if args.smoke else "")
+  with tqdm(total=args.rounds * len(compiled), desc="rounds", unit="call") as bar:
+    measured = _bench.rounds({name: _bench.wall(fn, w, controls) for name, (fn, w) in compiled.items()},
+                             args.rounds, lambda *_: bar.update())
+  times = {name: [t / STEPS for t in ts] for name, ts in measured.figures.items()}
+  write(times, args.batch, out_dir(args), run)
 
 
-def write(times: dict[str, list[float]], batch: int, out, flags: str = "") -> None:
+def write(times: dict[str, list[float]], batch: int, out, run) -> None:
   base = times["lean (for_world)"]
   lines = [
       "# What each feature costs on the demo scene",
       "",
-      f"`python benchmarks/specialisation.py --batch {batch}{flags}` on {jax.devices()[0].device_kind}, "
-      f"jax {jax.__version__}: `scenes.platformer` (14 bodies), {batch} worlds, jitted vmapped "
+      f"`scenes.platformer` (14 bodies), {batch} worlds, jitted vmapped "
       f"{STEPS}-step rollouts, compile excluded. Ratio = variant / lean config, per round "
       "(interleaved), median over rounds.",
       "",
@@ -124,8 +122,7 @@ def write(times: dict[str, list[float]], batch: int, out, flags: str = "") -> No
       "\"no walls\" rows use the same bodies with the walls made movable (mass 1000), so",
       "that switching off immovable tracking is allowed; they compare with each other.",
   ]
-  (out / "specialisation.md").write_text("\n".join(lines) + "\n")
-  print("\n".join(lines))
+  _bench.write_result(out, "specialisation.md", lines, run)
 
 
 if __name__ == "__main__":

@@ -19,8 +19,6 @@ with the player pushed in random directions for 10^4 steps. Writes
 from __future__ import annotations
 
 import argparse
-import datetime
-import os
 import sys
 import time
 
@@ -31,6 +29,7 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import metrics, scenes, status
+import _bench
 from _bench import add_common_args, out_dir
 
 INF = np.inf
@@ -425,6 +424,7 @@ def main():
   parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--quick", action="store_true", help="soak of 8 worlds for 2000 steps")
   args = add_common_args(parser).parse_args()
+  run = _bench.Run.start()
   soak_batch, soak_steps = (8, 2000) if args.quick else (64, 10_000)
   # `--smoke`: every case once, small and short (the tables' titles keep the full sizes).
   steps, ratios, dts, speeds, tall, chain = 2000, RATIOS, DTS, SPEEDS, 100, 256
@@ -434,7 +434,6 @@ def main():
     soak_batch, soak_steps = 2, 10
     # Stacks of 10 throughout: one shape, so the penetration measure compiles once.
     steps, ratios, dts, speeds, tall, chain = 10, RATIOS[-1:], DTS[2:3], SPEEDS[-1:], 10, 4
-  t_start = time.perf_counter()
   groups = {}
   n_runs = len(ratios) + 1 + 1 + 1 + len(dts) + len(speeds) * (1 if args.smoke else 2)
   with tqdm(total=n_runs, desc="cases", unit="run", file=sys.stderr) as bar:
@@ -446,19 +445,12 @@ def main():
     groups["tunnel"] = tunnel_cases(min(steps, 60), bar, speeds,
                                     forcing=(True,) if args.smoke else (False, True))
   s = soak(soak_batch, soak_steps)
-  total_s = time.perf_counter() - t_start
-  command = "python benchmarks/stability.py" + (" --smoke" if args.smoke else
-                                                " --quick" if args.quick else "")
-  write(groups, ulp, s, command, total_s, out_dir(args))
+  write(groups, ulp, s, run, out_dir(args))
 
 
-def write(groups: dict, ulp: float, s: dict, command: str, total_s: float, out) -> None:
-  device = jax.devices()[0].device_kind
-  date = datetime.date.today().isoformat()
+def write(groups: dict, ulp: float, s: dict, run, out) -> None:
   lines = [
       "# Stability: stiff and extreme cases over long runs",
-      "",
-      f"`{command}` on {device} ({os.cpu_count()} cores), jax {jax.__version__}, {date}; whole run {total_s:.0f} s.",
       "",
       "Every case is measured after every step. *pen*: largest penetration between "
       "resolvable pairs (`metrics.max_penetration`). *non-finite*: the `NON_FINITE` bit or a "
@@ -566,7 +558,7 @@ def write(groups: dict, ulp: float, s: dict, command: str, total_s: float, out) 
   lines += ["", "## Status messages seen (`jc.check`)", ""]
   lines += [f"- {m}" for m in sorted(messages)] or ["- none"]
   lines += ["", "## Bounds", "", bounds_paragraph(groups, ulp, s)]
-  (out / "stability.md").write_text("\n".join(lines) + "\n")
+  _bench.write_result(out, "stability.md", lines, run, echo=False)
   plot(s, out)
   print("\n".join(lines))
 

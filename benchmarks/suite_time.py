@@ -273,7 +273,8 @@ def main(argv=None) -> int:
   args, pytest_args = add_common_args(parser).parse_known_args(argv)
   if args.smoke and not pytest_args:
     pytest_args = list(SMOKE_ARGS)
-  from _bench import machine
+  from _bench import Run, machine, write_result
+  started = Run.start(src=ROOT / "src")
   with tempfile.TemporaryDirectory() as tmp:
     record_dir = args.keep or pathlib.Path(tmp)
     record_dir.mkdir(parents=True, exist_ok=True)
@@ -281,9 +282,7 @@ def main(argv=None) -> int:
     meta.update(machine=machine(), python=f"Python {sys.version.split()[0]}")
     records = read(record_dir)
   text = tables(meta, records, top=args.top)
-  path = out_dir(args) / "suite.md"
-  path.write_text(text)
-  print(text)
+  path = write_result(out_dir(args), "suite.md", text, started)
   print(f"wrote {path}")
   return 0 if meta["returncode"] in (0, 1) else meta["returncode"]
 

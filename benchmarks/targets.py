@@ -32,7 +32,7 @@ import subprocess
 import sys
 import tempfile
 
-from _bench import ROOT, add_common_args, export_src, machine, out_dir
+from _bench import ROOT, Run, add_common_args, export_src, out_dir, write_result
 
 
 CHILD = r"""
@@ -110,7 +110,7 @@ def main() -> None:
   sizes = [1024, 20, 200, 1024]  # envs, scan steps, one-world calls, room batch
   if args.smoke:
     args.against, args.rounds, sizes = [], 1, [4, 2, 5, 4]
-  header = machine()
+  run = Run.start(src=ROOT / "src")
   trees = {"HEAD": ROOT / "src"}
   with tempfile.TemporaryDirectory() as tmp:
     for rev in args.against:
@@ -123,8 +123,6 @@ def main() -> None:
   med = {name: {k: statistics.median(run[k] for run in rs) for k in rs[0]} for name, rs in runs.items()}
   batch = sizes[3]
   lines = ["# Issue 27 targets beside an earlier commit", "",
-           f"`python benchmarks/targets.py{' --smoke' if args.smoke else ''}"
-           f"{' --against ' + ' '.join(args.against) if args.against else ''}`, {header}. "
            f"Median over {args.rounds} alternating rounds of the best of 3 calls per figure, "
            "compile apart; each tree in a fresh interpreter.", "",
            "| figure | " + " | ".join(trees) + " | HEAD over each |", "|---|" + "---|" * (len(trees) + 1)]
@@ -141,9 +139,7 @@ def main() -> None:
   scale = {name: med[name][f"room_B{batch}"] / med[name]["room_B1"] for name in trees}
   lines.append(f"| room of 64, B={batch} over B=1 throughput | " +
                " | ".join(f"{scale[n]:.1f}x" for n in trees) + " | - |")
-  text = "\n".join(lines) + "\n"
-  print(text)
-  (out_dir(args) / "targets.md").write_text(text)
+  write_result(out_dir(args), "targets.md", lines, run)
 
 
 if __name__ == "__main__":

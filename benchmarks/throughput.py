@@ -15,7 +15,6 @@ and listed. Writes `results/throughput.md` and `results/throughput.png`.
 from __future__ import annotations
 
 import argparse
-import time
 
 import jax
 import jax.numpy as jnp
@@ -24,7 +23,7 @@ from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import scenes
-from _bench import add_common_args, compile_and_time, loglog, machine, out_dir
+from _bench import Run, add_common_args, compile_and_time, loglog, out_dir, write_result
 
 PUSH = 20.0  # The player's acceleration along +x, as `jaxchain demo --push`.
 # Largest candidate table (worlds x bodies x row slots) a setting may hold: about
@@ -68,23 +67,19 @@ def main():
   repeats = 3 if args.quick else 5
   if args.smoke:
     args.sizes, batches, repeats = [16], [2], 1
-  header = machine()
-  started = time.perf_counter()
+  run = Run.start()
   rows = []
   plan = [(n, b) for n in args.sizes for b in batches]
   with tqdm(plan, desc="throughput", unit="setting") as bar:
     for n, b in bar:
       bar.set_postfix(N=n, B=b)
       rows.append(setting(n, b, repeats, max_steps=2 if args.smoke else 100))
-  write(rows, args, header, time.perf_counter() - started)
+  write(rows, args, run)
 
 
-def write(rows, args, header, wall_s) -> None:
-  flags = " --smoke" if args.smoke else " --quick" if args.quick else ""
+def write(rows, args, run: Run) -> None:
   lines = [
       "# Throughput over bodies per world and batch size",
-      "",
-      f"`python benchmarks/throughput.py{flags}`, {header}; {wall_s:.0f} s in all.",
       "",
       "Scene: `scenes.platformer_level(N)`, the demo platformer grown to N bodies (player "
       f"accelerated at {PUSH} along +x into a row of 4 boxes, the rest stacked in columns of 5), "
@@ -113,9 +108,8 @@ def write(rows, args, header, wall_s) -> None:
       lines.append(f"- N={n}: batching gains {max(r['body_steps'] for r in one) / one[0]['body_steps']:.1f}x "
                    f"over B={one[0]['batch']}")
   out = out_dir(args)
-  (out / "throughput.md").write_text("\n".join(lines) + "\n")
+  write_result(out, "throughput.md", lines, run)
   plot(done, out)
-  print("\n".join(lines))
 
 
 def plot(rows, out) -> None:

@@ -37,7 +37,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from _bench import add_common_args, machine, out_dir
+import _bench
+from _bench import add_common_args, out_dir
 
 CLOSING_GATE = "closing_gate"  # jaxchain.core.step.CLOSING_GATE (older commits lack it).
 
@@ -189,12 +190,10 @@ def meter(fn, *args, while_trips: int = 1, branch: str = "common", config=None) 
 
 
 def room64(n: int = 64):
-  """The peers' room (`benchmarks/peers.py`): `n` unit boxes falling in a closed room,
-  friction 0.5, g = -9.81, dt = 1/60, `Config.for_world`."""
-  import jaxchain as jc
-  s = jc.scenes.lattice_room(n, 0)
-  world = jc.World.create(s.pos, s.half, s.mass, friction=0.5, gravity=(0.0, -9.81))
-  return world, jc.Config.for_world(world, dt=1 / 60)
+  """The room of N boxes (`_bench.room_world`, as `benchmarks/peers.py` times it): `n`
+  unit boxes falling in a closed room, friction 0.5, g = -9.81, dt = 1/60,
+  `Config.for_world`."""
+  return _bench.room_world(n)
 
 
 def demo():
@@ -254,14 +253,9 @@ def _config_line(config) -> str:
 def _against(commit: str, smoke: bool) -> dict:
   """The same counts for `commit`, exported with `git archive` and metered by this script
   in a fresh interpreter with that tree's `src` first on the path."""
-  root = pathlib.Path(__file__).resolve().parents[1]
   with tempfile.TemporaryDirectory() as tmp:
-    tree = pathlib.Path(tmp) / "tree"
-    tree.mkdir()
-    archive = subprocess.run(["git", "-C", str(root), "archive", commit], check=True,
-                             capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
-    code = (f"import sys, json; sys.path[:0] = [{str(tree / 'src')!r}, "
+    src = _bench.export_src(commit, pathlib.Path(tmp))
+    code = (f"import sys, json; sys.path[:0] = [{str(src)!r}, "
             f"{str(pathlib.Path(__file__).parent)!r}]; import work_meter as m; "
             f"print(json.dumps(m.scene_counts({smoke})))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -298,11 +292,11 @@ def main(argv=None) -> None:
   parser.add_argument("--against", nargs="*", default=[], metavar="COMMIT",
                       help="also meter these commits (git archive, fresh interpreter)")
   args = parser.parse_args(argv)
+  run = _bench.Run.start()
   results = scene_counts(args.smoke)
   against = {c: _against(c, args.smoke) for c in args.against}
   lines = ["# Work meter: elements per body-step", "",
-           f"{machine()}. Counted from the jaxpr of one step of a batch of `BATCH` copies of each scene (`python "
-           "benchmarks/work_meter.py`): every equation's output elements, gathers' "
+           "Counted from the jaxpr of one step of a batch of `BATCH` copies of each scene: every equation's output elements, gathers' "
            "elements apart, loop bodies times their trip counts; per body and world. Deterministic: "
            "it does not depend on the machine or its load. Where the step branches "
            "(`lax.cond` over the batch: the seam rule only with a corner contact, the "
@@ -316,9 +310,7 @@ def main(argv=None) -> None:
   for commit, res in against.items():
     for name, r in res.items():
       lines += stage_table(f"{name} at {commit}", r)
-  text = "\n".join(lines)
-  print(text)
-  (out_dir(args) / "work_meter.md").write_text(text + "\n")
+  _bench.write_result(out_dir(args), "work_meter.md", lines, run)
 
 
 if __name__ == "__main__":
