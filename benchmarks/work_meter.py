@@ -241,7 +241,29 @@ def scene_counts(smoke: bool = False) -> dict[str, dict]:
                      gathered=sum(count.gathered.values()) / per, stages=stages,
                      worst=[sum(worst.elements.values()) / per, sum(worst.gathered.values()) / per],
                      while_loops=count.while_loops)
+    rolled = _rollout_step(batch, config, per)
+    if rolled is not None:
+      out[f"{name}, rollout step"] = dict(out[name], **rolled)
   return out
+
+
+def _rollout_step(batch, config, per: int) -> dict | None:
+  """A rollout's step in steady state: the neighbour table carried from the step before
+  and kept (`core.step.advance`; `pairs.refresh`'s keep branch is the common path), as a
+  settled room runs it. None without a table (or on commits before the carried table)."""
+  from jaxchain import core
+  if config.neighbors is None or not hasattr(core.step, "advance"):
+    return None
+  state, bodies = core.from_world(batch)
+  table = core.pairs.build(state.pos, bodies, config, state.pos)
+  fn = lambda s, t: core.step.advance(s, t, bodies, config)
+  count = meter(fn, state, table, config=config)
+  worst = meter(fn, state, table, branch="worst", config=config)
+  return dict(elements=sum(count.elements.values()) / per,
+              gathered=sum(count.gathered.values()) / per,
+              stages={s: [count.elements[s] / per, count.gathered[s] / per] for s in ORDER
+                      if count.elements[s]},
+              worst=[sum(worst.elements.values()) / per, sum(worst.gathered.values()) / per])
 
 
 def _config_line(config) -> str:
@@ -300,8 +322,11 @@ def main(argv=None) -> None:
            "elements apart, loop bodies times their trip counts; per body and world. Deterministic: "
            "it does not depend on the machine or its load. Where the step branches "
            "(`lax.cond` over the batch: the seam rule only with a corner contact, the "
-           "second link slot only where a body has a second link) the main columns count "
-           "the cheaper branch, the common case; the worst-branch column the dearer. "
+           "second link slot only where a body has a second link, the closing stage's "
+           "passes only where overlap is left) the main columns count "
+           "the cheaper branch, the common case; the worst-branch column the dearer (every "
+           "closing pass run). A scene with a neighbour table also has its rollout step: "
+           "the table carried from the step before and kept, as a settled room runs it. "
            "Issue 27's budget for the room of 64: must <= 6,000 / <= 500, goal <= 3,000 / "
            "<= 250.", ""]
   lines += table(results, against) + [""]
