@@ -32,7 +32,8 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxchain.core.contacts import Links
-from jaxchain.core.layout import any_world, along, fold, opposite, safe_divide, world_sum
+from jaxchain.core.layout import (any_world, along, choose, fold, opposite, positive,
+                                  push_max, safe_divide, world_sum)
 
 # Jacobi refinement steps on the contact impulses after the chain's estimate.
 REFINE = 4
@@ -180,11 +181,17 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   # one behind it (M_e(i)), j's the one in front of j (M_d(j)).
   mass_i, leans_i = opposite(unit)[None], opposite(leans)[None]
   mass_j, leans_j = f.front(unit), f.front(leans)
-  depth_now = jnp.where(f.mask, jnp.maximum(f.overlap, 0.0), 0.0)
-  carries = depth_now > 0
+  # Ties (a depth or a push of exactly 0) take the derivative of the piece that pushes
+  # only where the link closes (its bodies approach at the start of the pass), else of
+  # the piece that does not (`layout.positive`, `layout.push_max`).
+  lead = jnp.zeros(f.mask.shape, bool)
   if vel is not None:
     m_dir = along(vel[0], vel[1])
     approach = jnp.where(f.mask, m_dir[None] - f.front(m_dir), 0.0)
+    lead = f.mask & (approach > 0)
+  depth_now = jnp.where(f.mask, positive(f.overlap, lead), 0.0)
+  carries = depth_now > 0
+  if vel is not None:
     carries = carries | (approach != 0)
   # Only a link with something to carry (a depth, an approach speed) reports a unit the
   # hops cut short: a resting row longer than K that nothing pushes is exact.
@@ -198,17 +205,20 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   # How far i is pushed along e by this contact beyond j's own push. Across a gap i moves
   # only once j has closed half of it. A jammed contact moves its two bodies only (half
   # its depth each), not their units.
-  shares = [jnp.where(f.overlap > 0, jnp.where(jammed, 0.0, depth_now * weight),
-                      0.5 * f.overlap)]
-  crush_push = opposite(jnp.max(jnp.where(jammed, 0.5 * depth_now, 0.0), axis=0, initial=0.0))
+  push_now = jnp.where(jammed, 0.0, depth_now * weight)
+  shares = [choose(_share, _share_at_tie, f.overlap, push_now, lead)]
+  crush_push = opposite(push_max(jnp.where(jammed, 0.5 * depth_now, 0.0), jammed & lead))
+  leads = [lead]
   if vel is not None:
     shares.append(jnp.where(approach > 0, approach * jnp.where(jammed, 0.0, weight), approach))
+    leads.append(lead)
   shares = [opposite(s, 1) for s in shares]  # Rows of the reversed table.
+  leads = [opposite(x, 1) for x in leads]
 
   def push_hop(disps):
     out = []
-    for disp, share in zip(disps, shares):
-      pushed = jnp.max(jnp.where(f.back_mask, f.back(disp) + share, 0.0), axis=0, initial=0.0)
+    for disp, share, ahead in zip(disps, shares, leads):
+      pushed = push_max(jnp.where(f.back_mask, f.back(disp) + share, 0.0), ahead)
       out.append(jnp.where(movable[None], pushed, 0.0))
     return tuple(out)
 
@@ -216,7 +226,8 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   disps, pushed_on = repeat(push_hop, (zero,) * len(shares), depth + 1, converge, check=True)
   push_short = any_world(jnp.stack(pushed_on))
   exhausted = backing_short | push_short  # Bools: no gradient to stop.
-  disp = jnp.where(movable[None], jnp.maximum(disps[0], crush_push), 0.0)
+  # A tie between the chain's push and the crush rule's takes the chain's derivative.
+  disp = jnp.where(movable[None], choose(jnp.maximum, _chain_first, disps[0], crush_push), 0.0)
   net = jnp.stack([disp[0] - disp[1], disp[2] - disp[3]])
   if vel is None:
     B = mass.shape[-1]
@@ -229,7 +240,7 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   sliding = jnp.where(f.mask, t_dir[None] - f.front(t_dir), 0.0)
   sticking = f.mask & (jnp.abs(sliding) <= stick)
   impulse, shared, tree, impulse_short = link_impulses(net_vel, f, mass, leans, jammed, sticking,
-                                                       depth, converge)
+                                                       depth, converge, lead=lead)
   exhausted = exhausted | impulse_short
   inv_mass = safe_divide(jnp.ones_like(mass), mass)
   free = f.mask & ~jammed
@@ -252,7 +263,7 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
     c = velocity_change(lam)
     v_dir = along(vel[0] + c[0], vel[1] + c[1])
     closing = v_dir[None] - f.front(v_dir)
-    return jnp.where(free, jnp.maximum(lam + safe_divide(closing, stiffness), 0.0), 0.0)
+    return jnp.where(free, positive(lam + safe_divide(closing, stiffness), lead), 0.0)
 
   lam = lax.fori_loop(0, REFINE, refine, impulse)
   change = velocity_change(lam)
@@ -260,6 +271,22 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
   return Pass(net, exhausted, crushed, scale[None, None] * change,
               scale[None, None, None] * lam, jammed, shared, sticking,
               scale < 1, unit_short)
+
+
+def _share(overlap, push, lead):
+  """How far a link pushes (`push` where it overlaps, minus half the gap across a gap)."""
+  del lead
+  return jnp.where(overlap > 0, push, 0.5 * overlap)
+
+
+def _share_at_tie(overlap, push, lead):
+  """`_share` with the pushing piece at `overlap = 0` where the link leads (closes)."""
+  return jnp.where((overlap > 0) | ((overlap == 0) & lead), push, 0.5 * overlap)
+
+
+def _chain_first(chain_push, crush_push):
+  """`max(chain_push, crush_push)`, the chain's piece at a tie."""
+  return jnp.where(crush_push > chain_push, crush_push, chain_push)
 
 
 def energy_scale(vel: jax.Array, change: jax.Array, impulse: jax.Array, f: Links,
@@ -292,7 +319,8 @@ def energy_scale(vel: jax.Array, change: jax.Array, impulse: jax.Array, f: Links
 
 
 def link_impulses(change: jax.Array, f: Links, mass: jax.Array, leans: jax.Array,
-                  jammed: jax.Array, sticking: jax.Array, depth: int, converge: bool = False):
+                  jammed: jax.Array, sticking: jax.Array, depth: int, converge: bool = False,
+                  lead: jax.Array | None = None):
   """One compressive impulse per link that carries the velocity changes `change`.
 
   The impulse through link (i, j) along d is the momentum change of everything j pushes
@@ -308,6 +336,9 @@ def link_impulses(change: jax.Array, f: Links, mass: jax.Array, leans: jax.Array
   impulses of a row hit at one end run through every link of the row) reports the cut.
   The friction units are cut short no later than the backing (`Pass.short`, which
   friction reads).
+
+  `lead` (`[L, 4, n, B]` bool, default none): links whose bodies close on each other; an
+  impulse of exactly 0 takes the pushing piece's derivative there (`layout.positive`).
 
   Returns:
     `(impulse, units, tree, exhausted)`: `[L, 4, n, B]` impulses `>= 0`; `[4, n, B]`
@@ -335,7 +366,8 @@ def link_impulses(change: jax.Array, f: Links, mass: jax.Array, leans: jax.Array
   agree = leans_j | leans_i | (jnp.abs(r_j - r_i) <= 1e-5 * jnp.maximum(jnp.abs(r_j), jnp.abs(r_i)))
   tree = fold("all", agree | ~f.mask, 2)
   cut = f.mask & ~jammed & (f.front(q_short) | opposite(q_short)[None])
-  return (jnp.where(f.mask & ~jammed, jnp.maximum(estimate, 0.0), 0.0), units, tree,
+  lead = jnp.zeros(f.mask.shape, bool) if lead is None else lead
+  return (jnp.where(f.mask & ~jammed, positive(estimate, lead), 0.0), units, tree,
           any_world(cut))
 
 

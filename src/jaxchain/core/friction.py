@@ -17,7 +17,7 @@ from jax import lax
 
 from jaxchain.core import chain
 from jaxchain.core.contacts import Links
-from jaxchain.core.layout import any_world, batch_any, fold, opposite, safe_divide, safe_sqrt
+from jaxchain.core.layout import any_world, batch_any, choose, fold, opposite, safe_divide, safe_sqrt
 
 # Linked bodies whose tangential velocities differ by at most this (units per second)
 # move together for friction: they are one unit, and friction on the bottom one stops
@@ -81,17 +81,24 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   budget = jnp.where(f.mask, mu_pair * normal, 0.0)
   rubbing = (budget > 0) & (jnp.abs(sliding) > SLIP)
   movable = fold("any", shared > 0)[None]
-  k = jnp.broadcast_to(jnp.sum(rubbing, axis=(0, 1)).astype(dtype), tangent.shape)
+  per_body = lambda links: jnp.broadcast_to(jnp.sum(links, axis=(0, 1)).astype(dtype),
+                                            tangent.shape)
+  k = per_body(rubbing)
+  # Derivatives: a link with a budget that slides by at most `SLIP` (at rest: `SLIP` only
+  # keeps rounding from acting) takes the derivative of the impulse that stops it, with
+  # mass splitting over every link with a budget (the piece a perturbation that makes it
+  # slide steps into); every other link its impulse's own.
+  resting = (budget > 0) & ~rubbing
+  k_d = per_body(budget > 0)
 
   def solve(shared, sticking, slip):
     """Impulses on the units `shared`, the slipped links carrying `slip`. Returns
     `(impulse, total, count)`: `total` is each body's tangential velocity change as part
     of its unit along each direction, `count` its sticking pushers along it."""
     unit_i = opposite(shared)  # At (d, i): i's unit along e.
-    inv_i = safe_divide(k, unit_i)
-    inv_j = f.front(safe_divide(k, shared))
-    stop = jnp.clip(safe_divide(sliding, inv_i[None] + inv_j), -budget, budget)
-    impulse = jnp.where(rubbing & (slip == 0), stop, slip)
+
+    impulse = choose(_impulses, _impulses_at_rest, f, sliding, unit_i, shared, budget, slip,
+                     rubbing, k, resting, k_d)
     source = opposite(safe_divide(-jnp.sum(impulse, axis=0), unit_i))  # At (e, i).
     carries = opposite(sticking, 1)  # Rows of the reversed table, sticking.
     count = jnp.sum(carries, axis=0).astype(dtype)
@@ -143,6 +150,29 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   if short is not None:
     exhausted = any_world(rubbing & (opposite(short)[None] | f.front(short)))
   return vel + scale[None, None] * change, scale < 1, exhausted
+
+
+def _stops(f: Links, sliding, unit_i, shared, budget, k):
+  """The impulses that stop each link's sliding, with mass splitting over `k` links,
+  clipped to the budgets."""
+  inv_i = safe_divide(k, unit_i)
+  inv_j = f.front(safe_divide(k, shared))
+  return jnp.clip(safe_divide(sliding, inv_i[None] + inv_j), -budget, budget)
+
+
+def _impulses(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d):
+  """Each link's friction impulse: the stopping one where it rubs, else `slip`."""
+  del resting, k_d
+  stop = _stops(f, sliding, unit_i, shared, budget, k)
+  return jnp.where(rubbing & (slip == 0), stop, slip)
+
+
+def _impulses_at_rest(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d):
+  """`_impulses`, with the resting links (a budget, sliding within `SLIP`) stopped too,
+  each counting every link with a budget for its mass splitting (`k_d`)."""
+  rest = _stops(f, sliding, unit_i, shared, budget, k_d)
+  return jnp.where(resting & (slip == 0), rest,
+                   _impulses(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d))
 
 
 def holding(f: Links, total: jax.Array, shared: jax.Array, count: jax.Array) -> jax.Array:
