@@ -156,7 +156,8 @@ def batch_route(kernel: Callable) -> Callable:
   """`kernel(*batched_args) -> batched outputs` (every array with a leading batch axis)
   made into a function of one world whose `jax.vmap` calls `kernel` on the whole batch.
 
-  * One world: the kernel at `B = 1`.
+  * One world: the kernel at `B = 1`, or on a batch of `ONE_WORLD` copies of it for a
+    small world (see `ONE_WORLD`).
   * Under `vmap`: a `custom_vmap` rule calls the kernel on the batch (leaves the vmap
     does not batch are broadcast); under nested `vmap`s the outer axes fold into one
     batch (`[A, B, ...]` -> `[A * B, ...]`).
