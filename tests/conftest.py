@@ -35,6 +35,11 @@ for _flag in SUITE_XLA_FLAGS:  # A flag the caller set keeps the caller's value.
   if _flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}".strip()
 
+# The command line keeps its compiled programs in a cache directory of the user's
+# (`jaxchain.compile_cache`): the suite's runs do not (tests/test_cli.py's cache tests name
+# a temporary one), in this process and in the tests' subprocesses.
+os.environ.setdefault("JAXCHAIN_CACHE", "off")
+
 import jax  # noqa: E402 - after XLA_FLAGS.
 import pytest
 from hypothesis import settings

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import jaxchain
-from jaxchain import cli, status
+from jaxchain import cli, compile_cache, status
 
 
 def test_demo_figures():
@@ -119,6 +119,7 @@ HELP_DEFAULTS = {
     "--depth": "from the scene", "--iterations": "1", "--friction": "0.3", "--push": "20",
     "--converge": "on", "--level": "none", "--gif": "none", "--gif-worlds": "4",
     "--gif-size": "96x160", "--gif-every": "2", "--gif-fps": "30", "--no-progress": "off",
+    "--no-cache": "off",
 }
 
 
@@ -290,3 +291,97 @@ def test_tile_lays_clips_out_in_a_grid():
   assert grid.shape == (2, 2 * 3 + 1, 2 * 4 + 1, 3)  # 2 columns, 2 rows, the last cell empty.
   assert grid[0, 0, 0, 0] == 10 and grid[0, 0, -1, 0] == 20 and grid[0, -1, 0, 0] == 30
   assert grid[0, -1, -1, 0] == 0 and grid[0, 3, 0, 0] == 0
+
+
+# --- Compile once per machine (issue 41 item 2) -------------------------------------------
+# The suite runs with `JAXCHAIN_CACHE=off` (tests/conftest.py); these tests name a cache of
+# their own. The smallest step to compile, as above.
+SMALL = dict(batch=2, steps=12, chunk=6, seed=1, depth=0, iterations=1, friction=0.0,
+             push=20.0, progress=False, converge=False)
+
+
+def _same_worlds(a, b):
+  for name in ("pos", "vel", "status", "crushed", "touching", "sensed"):
+    np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_a_second_run_loads_the_program_from_the_cache(tmp_path, capsys):
+  plain = cli.demo(**SMALL)
+  assert plain["compile_source"] == "off"
+  with compile_cache.persistent(tmp_path):
+    first = cli.demo(**SMALL, cache=tmp_path)
+    second = cli.demo(**SMALL, cache=tmp_path)
+    # Another program (the push is data, the depth is not): compiled, not loaded.
+    other = cli.demo(**{**SMALL, "depth": 1}, cache=tmp_path)
+  assert jax.config.jax_compilation_cache_dir is None  # JAX's settings as they were.
+  assert [first["compile_source"], second["compile_source"], other["compile_source"]] == [
+      "compiled", "cache", "compiled"]
+  assert second["first_compile_s"] == first["compile_s"]
+  for figures in (first, second):  # The cached program gives the same answers, to the bit.
+    _same_worlds(figures["final_world"], plain["final_world"])
+  _same_worlds(other["final_world"], cli.demo(**{**SMALL, "depth": 1})["final_world"])
+  assert len(list((tmp_path / "programs").glob("*.pkl"))) == 2
+  assert any((tmp_path / "xla").iterdir())  # XLA's executables, in JAX's cache.
+  out = capsys.readouterr().out
+  assert f"compile cache         saved to {tmp_path}: the next run loads it" in out
+  assert (f"compile cache         loaded from {tmp_path}; the first compile on this machine "
+          f"took {first['compile_s']:.2f} s") in out
+
+
+def test_the_level_demo_keys_its_program_by_what_the_policy_closes_over(tmp_path):
+  # The push and the player are constants of the level demo's policy, not data: a run with
+  # another push must not load the program of the first.
+  level = dict(SMALL, batch=1, level="sokoban1")
+  with compile_cache.persistent(tmp_path):
+    cli.demo(**level, cache=tmp_path)
+    pushed = cli.demo(**{**level, "push": 5.0}, cache=tmp_path)
+    again = cli.demo(**{**level, "push": 5.0}, cache=tmp_path)
+  assert [pushed["compile_source"], again["compile_source"]] == ["compiled", "cache"]
+  plain = cli.demo(**{**level, "push": 5.0})
+  for figures in (pushed, again):
+    _same_worlds(figures["final_world"], plain["final_world"])
+
+
+def test_a_damaged_cached_program_is_compiled_again(tmp_path, capsys):
+  cli.demo(**SMALL, cache=tmp_path)
+  (saved,) = (tmp_path / "programs").glob("*.pkl")
+  saved.write_bytes(b"not a pickle")
+  again = cli.demo(**SMALL, cache=tmp_path)
+  assert again["compile_source"] == "compiled"
+  assert "compile cache note    the cached program could not be used" in capsys.readouterr().out
+  assert cli.demo(**SMALL, cache=tmp_path)["compile_source"] == "cache"  # Replaced.
+
+
+@pytest.mark.parametrize("env, wanted", [
+    ({"JAXCHAIN_CACHE_DIR": "/x/y"}, "/x/y"),
+    ({"XDG_CACHE_HOME": "/c"}, "/c/jaxchain"),
+    ({"HOME": "/h"}, "/h/.cache/jaxchain"),
+    ({"JAXCHAIN_CACHE": "off", "JAXCHAIN_CACHE_DIR": "/x/y"}, None),
+    ({"JAXCHAIN_CACHE": "0"}, None),
+])
+def test_the_cache_directory_comes_from_the_environment(env, wanted, monkeypatch):
+  for name in ("JAXCHAIN_CACHE", "JAXCHAIN_CACHE_DIR", "XDG_CACHE_HOME"):
+    monkeypatch.delenv(name, raising=False)
+  for name, value in env.items():
+    monkeypatch.setenv(name, value)
+  got = compile_cache.directory()
+  assert (None if got is None else str(got)) == wanted
+
+
+def test_the_console_script_compiles_once_per_machine(tmp_path):
+  # As a user runs it, twice: the second process loads the program and says so.
+  env = {**os.environ, "JAX_PLATFORMS": "cpu", "JAXCHAIN_CACHE_DIR": str(tmp_path)}
+  env.pop("JAXCHAIN_CACHE", None)
+  argv = [sys.executable, "-m", "jaxchain.cli", "demo", "--batch", "2", "--steps", "6",
+          "--chunk", "6", "--no-progress", "--depth", "0", "--no-converge", "--friction", "0"]
+  runs = [subprocess.run(argv, capture_output=True, text=True, env=env, timeout=300)
+          for _ in range(2)]
+  assert all(r.returncode == 0 for r in runs), runs[-1].stderr
+  assert "compile cache         saved to" in runs[0].stdout
+  assert "compile cache         loaded from" in runs[1].stdout
+  off = subprocess.run(argv + ["--no-cache"], capture_output=True, text=True, env=env,
+                       timeout=300)
+  assert "compile cache         off" in off.stdout
+  # Everything after the timings is the same in all three runs.
+  tail = lambda r: r.stdout.split("final max penetration")[1]
+  assert tail(runs[0]) == tail(runs[1]) == tail(off)

@@ -15,7 +15,7 @@ import numpy as np
 from jax import lax
 from tqdm import tqdm
 
-from jaxchain import drawing, flags, levels, metrics, scenes, status
+from jaxchain import compile_cache, drawing, flags, levels, metrics, scenes, status
 from jaxchain.config import Config
 from jaxchain.stepping import Trajectory, make_step
 from jaxchain.world import stack
@@ -120,7 +120,8 @@ def status_summary(world) -> dict[str, int]:
 
 def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
          iterations: int, friction: float, push: float, progress: bool,
-         converge: bool = True, level: str | None = None, gif: GifOptions | None = None) -> dict:
+         converge: bool = True, level: str | None = None, gif: GifOptions | None = None,
+         cache: str | os.PathLike | None = None) -> dict:
   """Runs the platformer demo and returns the figures it prints.
 
   With `level` (a shipped level's name or a path, `jaxchain.levels.load`) it runs that
@@ -137,12 +138,18 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   writing it, a few percent), and rendering and writing happen after the timing.
   Without `gif` nothing extra is traced.
 
+  With `cache` (a directory: `compile_cache.directory()` is the command line's) the
+  program is kept there (`jaxchain.compile_cache`): a second run with the same scene
+  sizes and settings loads it instead of tracing and compiling it again.
+
   Returns:
     The figures: timings, throughput, penetration and wall intrusion, whether every
     state is finite, and `status_messages`, `{message: number of worlds}` for every
     status bit set at the end (empty when all is well). For a level, the player's
     mean x travel and how many worlds end with a sensor triggered instead of the row
-    figures. With `gif`, also `gif_frames` (frames written) and `gif_bytes`. And, not
+    figures. `compile_source`: "compiled", "cache" (loaded from `cache`) or "off" (no
+    cache), and `first_compile_s`, the seconds of the first compile on this machine.
+    With `gif`, also `gif_frames` (frames written) and `gif_bytes`. And, not
     printed, `final_world` (the batch after the last step) and `chunks` (the steps
     each call of the compiled program advances, `chunk_lengths(steps, chunk)`).
 
@@ -152,7 +159,7 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   lengths = chunk_lengths(steps, chunk)
   if level is not None:
     return _level_demo(levels.load(level), batch, lengths, seed, depth, iterations,
-                       friction, push, progress, converge, gif)
+                       friction, push, progress, converge, gif, cache)
   rng = np.random.default_rng(seed)
   layouts = [scenes.platformer(rng) for _ in range(batch)]
   first = layouts[0]
@@ -174,12 +181,15 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
   print(f"jaxchain demo: {batch} worlds x {n} bodies, {steps} steps of {config.dt:.4f} s, "
         f"depth {config.depth}{' (converging)' if config.converge else ''}, iterations {config.iterations}, friction {friction:g}, "
         f"device {jax.devices()[0].device_kind}")
-  program = chunk_program(advance, lengths[0], None if gif is None else min(gif.worlds, batch))
-  compiled, compile_s = _compile(program, worlds, controls)
+  keep = None if gif is None else min(gif.worlds, batch)
+  program = chunk_program(advance, lengths[0], keep)
+  # The key names what the program closes over: the config (the push is data, `controls`).
+  compiled = _compile(program, cache, ("demo", config, lengths[0], keep), worlds, controls)
+  compile_s = compiled.seconds
 
   start_row = np.asarray(worlds.pos[:, first.row, 0])
   clips = []
-  world, run_s = _run(compiled, worlds, lengths, progress, clips, controls)
+  world, run_s = _run(compiled.fn, worlds, lengths, progress, clips, controls)
   messages, finite, penetration = _health(world)
   with np.errstate(invalid="ignore", over="ignore"):
     row_right = np.asarray(world.pos[:, first.row, 0] + world.half[:, first.row, 0])
@@ -190,8 +200,9 @@ def demo(batch: int, steps: int, chunk: int, seed: int, depth: int | None,
       compile_s=compile_s, run_s=run_s, world_steps_per_s=batch * steps / run_s,
       body_steps_per_s=batch * steps * n / run_s, max_penetration=penetration,
       wall_intrusion=intrusion, row_moved_mean=float(np.mean(moved)), worlds_at_wall=at_wall,
-      finite=finite, status_messages=messages, final_world=world, chunks=lengths)
-  _print_timing(figures)
+      finite=finite, status_messages=messages, final_world=world, chunks=lengths,
+      compile_source=compiled.source, first_compile_s=compiled.first_s)
+  _print_timing(figures, compiled, cache)
   print(f"row pushed            {figures['row_moved_mean']:8.3f} units on average; "
         f"{at_wall}/{batch} rows against the wall")
   print(f"row intrusion into wall {intrusion:10.3g}")
@@ -303,13 +314,12 @@ def chunk_lengths(steps: int, chunk: int) -> list[int]:
   return [chunk] * (steps // chunk) + ([steps % chunk] if steps % chunk else [])
 
 
-def _compile(program, worlds, *args) -> tuple[jax.stages.Compiled, float]:
-  """`(compiled, seconds)`: `program` (from `chunk_program`) compiled ahead of time for
-  `worlds` and `args`, the one compile of a run."""
-  t0 = time.perf_counter()
+def _compile(program, cache, key, worlds, *args) -> compile_cache.Compiled:
+  """`program` (from `chunk_program`) compiled ahead of time for `worlds` and `args`, the
+  one compile of a run, through the cache in `cache` (None: none); `key` names every
+  constant the program closes over (`compile_cache.compile`)."""
   bound = np.int32(0)  # `start` and `stop` are int32 scalars: data, not part of the program.
-  compiled = program.lower(worlds, bound, bound, *args).compile()
-  return compiled, time.perf_counter() - t0
+  return compile_cache.compile(program, (worlds, bound, bound, *args), key, cache)
 
 
 def _run(compiled, world, lengths: list[int], progress: bool, clips: list, *args):
@@ -344,11 +354,20 @@ def _health(world) -> tuple[dict[str, int], bool, float]:
   return status_summary(world), finite, penetration
 
 
-def _print_timing(figures: dict) -> None:
+def _print_timing(figures: dict, compiled: compile_cache.Compiled, cache) -> None:
   chunks = figures["chunks"]
   calls = f"{len(chunks)} call{'s' * (len(chunks) > 1)} of {chunks[0]} steps" + (
       f", the last masked to {chunks[-1]}" if chunks[-1] != chunks[0] else "")
   print(f"compile time          {figures['compile_s']:8.2f} s (one program: {calls})")
+  if compiled.source == "cache":
+    print(f"compile cache         loaded from {cache}; the first compile on this machine took "
+          f"{compiled.first_s:.2f} s")
+  elif compiled.source == "compiled":
+    print(f"compile cache         saved to {cache}: the next run loads it (--no-cache: off)")
+  else:
+    print("compile cache         off")
+  if compiled.note:
+    print(f"compile cache note    {compiled.note}")
   print(f"run time              {figures['run_s']:8.2f} s")
   print(f"world-steps/s         {figures['world_steps_per_s']:12.4g}")
   print(f"body-steps/s          {figures['body_steps_per_s']:12.4g}")
@@ -367,7 +386,7 @@ def _print_status(messages: dict[str, int], finite: bool, batch: int) -> None:
 
 
 def _level_demo(level, batch, lengths, seed, depth, iterations, friction, push,
-                progress, converge, gif=None) -> dict:
+                progress, converge, gif=None, cache=None) -> dict:
   """`demo` on a level: copies with box masses from `seed`, the player pushed and
   jumping when grounded."""
   player = level.player
@@ -397,10 +416,14 @@ def _level_demo(level, batch, lengths, seed, depth, iterations, friction, push,
         f"iterations {config.iterations}, friction {friction:g}, one-way "
         f"{'on' if config.one_way else 'off'}, sensors {'on' if config.sensors else 'off'}, "
         f"device {jax.devices()[0].device_kind}")
-  program = chunk_program(advance, lengths[0], None if gif is None else min(gif.worlds, batch))
-  compiled, compile_s = _compile(program, worlds)
+  keep = None if gif is None else min(gif.worlds, batch)
+  program = chunk_program(advance, lengths[0], keep)
+  # The policy closes over the player's index, the push and the jump: all in the key.
+  compiled = _compile(program, cache, ("level", config, player, float(push), JUMP, lengths[0],
+                                       keep), worlds)
+  compile_s = compiled.seconds
   clips = []
-  world, run_s = _run(compiled, worlds, lengths, progress, clips)
+  world, run_s = _run(compiled.fn, worlds, lengths, progress, clips)
   messages, finite, penetration = _health(world)
   travel = np.asarray(world.pos[:, player, 0] - worlds.pos[:, player, 0])
   triggered = int(np.sum(np.any(np.asarray(world.sensed), axis=-1)))
@@ -408,8 +431,9 @@ def _level_demo(level, batch, lengths, seed, depth, iterations, friction, push,
       compile_s=compile_s, run_s=run_s, world_steps_per_s=batch * steps / run_s,
       body_steps_per_s=batch * steps * n / run_s, max_penetration=penetration,
       player_moved_mean=float(np.mean(travel)), worlds_sensed=triggered, finite=finite,
-      status_messages=messages, final_world=world, chunks=lengths)
-  _print_timing(figures)
+      status_messages=messages, final_world=world, chunks=lengths,
+      compile_source=compiled.source, first_compile_s=compiled.first_s)
+  _print_timing(figures, compiled, cache)
   print(f"player moved          {figures['player_moved_mean']:8.3f} units along x on average")
   print(f"sensors triggered     {triggered}/{batch} worlds at the end")
   _print_status(messages, finite, batch)
@@ -462,6 +486,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, argparse.ArgumentParser]:
                       "with --gif-every 2)")
   p.add_argument("--no-progress", action="store_true",
                  help="no progress bar (default: off, a progress bar on stderr)")
+  p.add_argument("--no-cache", action="store_true",
+                 help="trace and compile the program again instead of loading it from the cache "
+                      "directory ($JAXCHAIN_CACHE_DIR, else ~/.cache/jaxchain; JAXCHAIN_CACHE=off "
+                      "also turns it off) (default: off, the cache is used)")
   return parser, p
 
 
@@ -479,9 +507,11 @@ def main(argv=None) -> int:
         fps=args.gif_fps)
     if gif is not None and not os.path.isdir(os.path.dirname(os.path.abspath(gif.path))):
       p.error(f"--gif: no such directory: {os.path.dirname(gif.path)!r}")
-    demo(args.batch, args.steps, args.chunk, args.seed, args.depth, args.iterations,
-         args.friction, args.push, progress=not args.no_progress, converge=args.converge,
-         level=args.level, gif=gif)
+    cache = None if args.no_cache else compile_cache.directory()
+    with compile_cache.persistent(cache):
+      demo(args.batch, args.steps, args.chunk, args.seed, args.depth, args.iterations,
+           args.friction, args.push, progress=not args.no_progress, converge=args.converge,
+           level=args.level, gif=gif, cache=cache)
   return 0
 
 
