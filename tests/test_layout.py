@@ -12,7 +12,8 @@ SRC = pathlib.Path(__file__).resolve().parents[1] / "src" / "jaxchain"
 # Every module of src/jaxchain (but the package's __init__), in dependency order: each
 # may import only modules before it.
 ORDER = ("reference", "sharding", "status", "world", "scenes", "broadphase", "core", "flags", "metrics",
-         "sizing", "config", "stepping", "queries", "levels", "drawing", "env", "bridges", "cli")
+         "sizing", "config", "stepping", "queries", "levels", "drawing", "env", "bridges",
+         "compile_cache", "cli")
 
 
 def _jaxchain_imports(node: ast.AST) -> list[str]:

@@ -35,6 +35,7 @@ import time
 from collections.abc import Callable, Hashable, Iterator
 
 import jax
+import jaxlib
 from jax.experimental.compilation_cache import compilation_cache
 
 _PACKAGE = pathlib.Path(__file__).resolve().parent
@@ -106,8 +107,6 @@ def _source_digest() -> str:
 
 
 def _program_key(key: Hashable, in_tree, avals) -> str:
-  import jaxlib  # noqa: PLC0415 - only its version.
-
   device = jax.devices()[0]
   parts = (_FORMAT, _source_digest(), jax.__version__, jaxlib.__version__, device.platform,
            device.device_kind, os.environ.get("XLA_FLAGS", ""), bool(jax.config.jax_enable_x64),
