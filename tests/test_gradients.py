@@ -273,17 +273,3 @@ def test_jvp_matches_finite_differences_on_smooth_scenes(data):
     tol = TOL["jvp_smooth"]
     for name, got in (("jvp", fwd @ direction), ("grad", grad @ direction)):
       np.testing.assert_allclose(got, wanted[0], rtol=tol["rtol"], atol=tol["atol"], err_msg=name)
-
-
-HESSIAN_STEPS = 3
-
-
-def impact_loss(theta, world, horizon):
-  """Over the first `horizon` (<= 3) steps, `sum(pos**2) + 0.1 * sum(vel**3)` of the two
-  boxes that collide in the first step; `theta`: A's velocity, B's inverse mass."""
-  w = world.replace(vel=world.vel.at[0].set(theta[:2]),
-                    inv_mass=world.inv_mass.at[1].set(theta[2]))
-  _, traj = jc.rollout(w, GRAD_CFG, HESSIAN_STEPS)
-  per_step = (jnp.sum(traj.pos[:, :2] ** 2, axis=(1, 2))
-              + 0.1 * jnp.sum(traj.vel[:, :2] ** 3, axis=(1, 2)))
-  return jnp.sum(jnp.where(jnp.arange(HESSIAN_STEPS, dtype=jnp.int32) < horizon, per_step, 0.0))

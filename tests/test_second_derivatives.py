@@ -1,7 +1,8 @@
-"""Second derivatives of a rollout (issue 36 item 2), in a module of their own: compiling
-`jax.hessian` and `jacrev(jacrev)` of a rollout takes about two minutes on the suite's
-codegen, and pytest-xdist keeps a module on one worker (`--dist loadfile`), so here it
-runs beside test_gradients.py rather than after it."""
+"""Second derivatives of a rollout (issue 36 item 2), in a module of their own: tracing and
+compiling `jax.hessian`, `jacrev(jacrev)` and a batch of `jax.grad` of a rollout is the
+largest program of the suite (about a minute on the suite's codegen), and pytest-xdist
+keeps a module on one worker (`--dist loadfile`), so here it runs beside
+test_gradients.py rather than after it."""
 
 import jax
 import jax.numpy as jnp
@@ -9,7 +10,27 @@ import numpy as np
 import pytest
 
 import jaxchain as jc
-from tests.test_gradients import FD_STEPS, impact_loss
+from tests.test_gradients import FD_STEPS, GRAD_CFG
+
+HESSIAN_STEPS = 3
+# One link per body and direction: in this scene no body has two links in one direction,
+# so the answers (and their derivatives) are those of GRAD_CFG's three, bit for bit, and
+# the program holds one copy of the resolver, not the copy for wider link tables too
+# (measured on this test's program: trace 58 s and compile 101 s with links=3; 33 s and
+# 42 s with links=1). The closing stage and friction's slip rounds, with their
+# `lax.cond`s, stay in the program.
+HESSIAN_CFG = GRAD_CFG.replace(links=1)
+
+
+def impact_loss(theta, world, horizon):
+  """Over the first `horizon` (<= 3) steps, `sum(pos**2) + 0.1 * sum(vel**3)` of the two
+  boxes that collide in the first step; `theta`: A's velocity, B's inverse mass."""
+  w = world.replace(vel=world.vel.at[0].set(theta[:2]),
+                    inv_mass=world.inv_mass.at[1].set(theta[2]))
+  _, traj = jc.rollout(w, HESSIAN_CFG, HESSIAN_STEPS)
+  per_step = (jnp.sum(traj.pos[:, :2] ** 2, axis=(1, 2))
+              + 0.1 * jnp.sum(traj.vel[:, :2] ** 3, axis=(1, 2)))
+  return jnp.sum(jnp.where(jnp.arange(HESSIAN_STEPS, dtype=jnp.int32) < horizon, per_step, 0.0))
 
 
 @jax.jit
@@ -36,6 +57,10 @@ def test_second_derivatives_of_a_rollout_match_differences_of_its_gradient(horiz
     theta = jnp.array([5.0, 0.3, 0.6])
     hessian, reverse, wanted = (np.asarray(x) for x in
                                 second_derivatives(theta, world, jnp.int32(horizon)))
+    # No second link in any direction here: HESSIAN_CFG's answers are GRAD_CFG's.
+    same = [np.asarray(jc.rollout(world, cfg, HESSIAN_STEPS)[1].pos)
+            for cfg in (GRAD_CFG, HESSIAN_CFG)]
+  np.testing.assert_array_equal(*same)
   assert abs(wanted[0, 2]) > 1.0  # B's mass matters: the boxes collide.
   scale = np.max(np.abs(wanted))
   for name, got in (("hessian", hessian), ("jacrev(jacrev)", reverse)):
