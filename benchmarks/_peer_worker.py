@@ -33,8 +33,10 @@ A scene is a dict of plain lists: `pos`, `half` (`[n, 2]`), `mass` (`[n]`, `Infi
 for an immovable body), `vel` (`[n, 2]`), `kinematic` (indices of immovable bodies that
 move by their velocity), `gravity` (`[gx, gy]`), `friction` (one coefficient for every
 contact), `dt`, and `drive`: `null` or `[body, speed]`, a body whose x velocity is set to
-`speed` before every step (the push chain's player). Every engine gets fixed-rotation
-boxes, restitution 0 and no sleeping.
+`speed` before every step (the push chain's player), and optionally `solver`: the
+engine's accuracy setting, `{"iterations": [velocity, position]}` for Box2D 2.3,
+`{"substeps": k}` for Box2D v3, `{"iterations": k}` for pymunk (default: each engine's
+own, as below). Every engine gets fixed-rotation boxes, restitution 0 and no sleeping.
 """
 
 from __future__ import annotations
@@ -84,6 +86,7 @@ class _Box2DWorld:
     self.world = b2.b2World(gravity=tuple(scene["gravity"]))
     self.world.SetAllowSleeping(False)  # The constructor's doSleep flag is ignored.
     self.dt, self.bodies = scene["dt"], []
+    self.iterations = tuple((scene.get("solver") or {}).get("iterations", BOX2D_ITERATIONS))
     for _, p, h, m, v, kinematic in _bodies(scene):
       if kinematic:
         body = self.world.CreateKinematicBody(position=p, linearVelocity=v)
@@ -96,7 +99,7 @@ class _Box2DWorld:
       self.bodies.append(body)
 
   def step(self):
-    self.world.Step(self.dt, *BOX2D_ITERATIONS)
+    self.world.Step(self.dt, *self.iterations)
 
   def velocity(self, k):
     return tuple(self.bodies[k].linearVelocity)
@@ -131,6 +134,7 @@ class _Box2DV3World:
     self.world = b2.World(gravity=tuple(scene["gravity"]))
     self.world.enable_sleep = False
     self.dt, self.bodies = scene["dt"], []
+    self.substeps = int((scene.get("solver") or {}).get("substeps", BOX2D_V3_SUBSTEPS))
     for _, p, h, m, v, kinematic in _bodies(scene):
       builder = self.world.new_body().position(*p)
       if kinematic:
@@ -144,7 +148,7 @@ class _Box2DV3World:
       self.bodies.append(builder.build())
 
   def step(self):
-    self.world.step(self.dt, BOX2D_V3_SUBSTEPS)
+    self.world.step(self.dt, self.substeps)
 
   def velocity(self, k):
     v = self.bodies[k].linear_velocity
@@ -182,6 +186,9 @@ class _PymunkWorld:
   def __init__(self, pm, scene):
     self.space = pm.Space()
     self.space.gravity = tuple(scene["gravity"])
+    iterations = (scene.get("solver") or {}).get("iterations")
+    if iterations is not None:
+      self.space.iterations = int(iterations)
     self.dt, self.bodies = scene["dt"], []
     for _, p, h, m, v, kinematic in _bodies(scene):
       if kinematic:

@@ -15,13 +15,26 @@ K=8, each with the link table `Config.for_world` sizes for the scene. K=0 is pla
 pairwise Jacobi (no chain propagation). The seed's old sequential pairwise system (NumPy, one world
 at a time, 1 to 32 sweeps) is the order-dependent baseline, timed per world.
 
+Beside the peers (`--no-peers` leaves them out): the same fronts where every engine can
+be compared, on dynamic scenes with gravity and friction (`peer_fronts`): the room of 64
+at rest (boxes settled 270 steps, then a window of 30: penetration and distance to the
+exact settled columns) and the push chain (a player driven at 2 units/s into 8 boxes
+against a wall, 600 steps: penetration and intrusion over the last 300, distance to the
+exact final row). Each engine at a few accuracy settings: jaxchain (depth, iterations,
+substeps), Box2D 2.3 (velocity / position iterations), Box2D v3 (substeps; in a worker
+under `--v3-python PATH`), pymunk (iterations). Time is CPU seconds per world-step, all of
+the process's threads counted (per core: the peers run one thread; jaxchain's XLA
+threads are summed), jaxchain batched as users run it.
+
 Writes `results/error_vs_time.md` (a table per scene family),
 `results/error_vs_time.png` (log-log error against time per world-step, one line per
-method, Pareto front marked) and `results/error_vs_time.json` (the rows, and the
+method, Pareto front marked), `results/error_vs_time_peers.png` (the fronts of every
+engine) and `results/error_vs_time.json` (the rows, and the
 header the table is redrawn with by `--replot`); `--quick` writes
 `error_vs_time_quick.*` instead, beside the full sweep's.
 
     python benchmarks/error_vs_time.py           # about 30 minutes on 2 cores
+    python benchmarks/error_vs_time.py --v3-python ~/venvs/box2d-v3/bin/python  # Box2D v3 too
     python benchmarks/error_vs_time.py --quick   # fewer scenes and settings
     python benchmarks/error_vs_time.py --smoke --out /tmp/x   # 1 scene, 1 setting: runs, writes
 """
@@ -33,11 +46,13 @@ import json
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
 import jaxchain as jc
 from jaxchain import metrics, reference, scenes
+import _bench
 from _bench import Run, add_common_args, compile_and_time, median_time, out_dir, write_result
 
 DEPTHS = (0, 1, 2, 4, 8, 16, 32, 64)
@@ -140,6 +155,10 @@ def main():
   parser.add_argument("--quick", action="store_true")
   parser.add_argument("--batch", type=int, default=64, help="worlds per timed call (default 64)")
   parser.add_argument("--repeats", type=int, default=5)
+  parser.add_argument("--no-peers", dest="peers", action="store_false",
+                      help="leave out the peer engines' fronts")
+  parser.add_argument("--v3-python", default=None, metavar="PATH",
+                      help="an interpreter with box2d-python and numpy: Box2D v3's fronts too")
   parser.add_argument("--replot", action="store_true",
                       help="rewrite the table and plot from error_vs_time.json (with --quick: "
                            "error_vs_time_quick.json) in --out, no run")
@@ -148,7 +167,8 @@ def main():
   if args.replot:
     saved = json.loads((out / f"{stem(args)}.json").read_text())
     write(saved["rows"], argparse.Namespace(**{"smoke": False, **saved["args"], "out": out}),
-          saved.get("header") or ["commit unknown (saved before results named their commit)", ""])
+          saved.get("header") or ["commit unknown (saved before results named their commit)", ""],
+          saved.get("fronts", []), saved.get("notes", []))
     return
   run = Run.start()
   if args.smoke:
@@ -181,11 +201,12 @@ def main():
                          iterations=sweeps, substeps=1, time=t,
                          **score(scene, pos, want, scene.pos)))
         bar.update()
+  fronts, notes = peer_fronts(args) if args.peers else ([], ["Peers left out (--no-peers)."])
   header = run.header()
   saved = {k: v for k, v in vars(args).items() if k not in ("out", "replot")}  # Not JSON.
-  (out / f"{stem(args)}.json").write_text(json.dumps(dict(args=saved, header=header, rows=rows),
-                                                     indent=0))
-  write(rows, args, header)
+  (out / f"{stem(args)}.json").write_text(json.dumps(dict(args=saved, header=header, rows=rows,
+                                                          fronts=fronts, notes=notes), indent=0))
+  write(rows, args, header, fronts, notes)
   print(f"wall time {time.perf_counter() - started:.0f} s")
 
 
@@ -235,7 +256,221 @@ def summary(rows) -> list[str]:
   return lines + [""]
 
 
-def write(rows, args, header: list[str]) -> None:
+# --- Beside the peers: dynamic scenes, every engine at a few settings -------------------
+
+FRONT_SETTINGS = {  # Engine -> its accuracy settings, cheapest first.
+    "jaxchain": [dict(depth=1), dict(depth=2), dict(depth=4), dict(), dict(iterations=2),
+                 dict(substeps=2)],
+    "Box2D": [dict(iterations=[1, 1]), dict(iterations=[2, 1]), dict(iterations=[4, 2]),
+              dict(iterations=[8, 3]), dict(iterations=[20, 10])],
+    "Box2D v3": [dict(substeps=1), dict(substeps=2), dict(substeps=4), dict(substeps=8)],
+    "pymunk": [dict(iterations=1), dict(iterations=3), dict(iterations=10), dict(iterations=30)],
+}
+QUICK_FRONTS = {"jaxchain": [dict(depth=2), dict()], "Box2D": [dict(iterations=[2, 1]),
+                dict(iterations=[8, 3])], "Box2D v3": [dict(substeps=1), dict(substeps=4)],
+                "pymunk": [dict(iterations=3), dict(iterations=10)]}
+FRONT_BATCH = 256  # jaxchain's worlds per timed call.
+ROOM_N, ROOM_SETTLE, ROOM_WINDOW = 64, 270, 30
+PUSH_STEPS, PUSH_TAIL, PUSH_SPEED = 600, 300, 2.0
+
+
+def setting_name(engine: str, setting: dict) -> str:
+  if engine == "jaxchain":
+    return ", ".join(f"{k} {v}" for k, v in setting.items()) or "for_world"
+  if engine == "Box2D":
+    return "iterations {}/{}".format(*setting["iterations"])
+  if engine == "Box2D v3":
+    return f"substeps {setting['substeps']}"
+  return f"iterations {setting['iterations']}"
+
+
+def exact_room(scene) -> np.ndarray:
+  """The room's settled state: every box on the one below it in its column (the lattice's
+  columns are 0.1 or more apart, so they never meet), x as it started."""
+  exact = scene.pos.copy()
+  movable = np.isfinite(scene.mass)
+  xs = scene.pos[movable, 0]
+  order = np.lexsort((scene.pos[movable, 1], np.round(xs / 1.5)))
+  ys = np.empty(int(movable.sum()))
+  height = {}
+  for k in order:
+    col = int(np.round(xs[k] / 1.5))
+    ys[k] = 0.5 + height.get(col, 0)
+    height[col] = height.get(col, 0) + 1
+  exact[movable, 1] = ys
+  return exact
+
+
+def exact_push(scene) -> np.ndarray:
+  """The push chain's converged state: the row against the wall, the player against the
+  row, all on the floor."""
+  exact = scene.pos.copy()
+  boxes = list(range(scene.player + 1, scene.last + 1))
+  for k, b in enumerate(reversed(boxes)):
+    exact[b] = [scene.wall_face - 0.5 - k, 0.5]
+  exact[scene.player] = [scene.wall_face - 0.5 - len(boxes), 0.5]
+  return exact
+
+
+def front_errors(kind: str, scene, traj: np.ndarray) -> dict:
+  """Errors of a trajectory `[t, n, 2]` (its first position the start)."""
+  movable = np.isfinite(scene.mass)
+  if kind == "room":
+    window = traj[-ROOM_WINDOW:]
+    dist = np.max(np.abs(window[-1][movable] - exact_room(scene)[movable]))
+    return dict(pen=float(np.max(_bench.penetration(window, scene))), dist=float(dist),
+                intrusion=float("nan"))
+  tail = traj[-PUSH_TAIL:]
+  last = scene.last
+  intrusion = np.max(traj[:, last, 0] + 0.5 - scene.wall_face)
+  dist = np.max(np.abs(traj[-1][movable] - exact_push(scene)[movable]))
+  return dict(pen=float(np.max(_bench.penetration(tail, scene))), dist=float(dist),
+              intrusion=float(max(intrusion, 0.0)))
+
+
+def jax_front(kind: str, scene, setting: dict, steps: int, batch: int, repeats: int) -> dict:
+  """jaxchain on `scene`: the first world's trajectory errors, and CPU seconds (every
+  thread of the process) per world-step of a batch of `batch` worlds."""
+  world = scene.world()
+  cfg = jc.Config.for_world(world, **setting)
+  controls = None
+  if kind == "push":  # The player's velocity set to the drive speed every step: as an
+    # acceleration that brings it there (the peers set it).
+    def policy(w, t):
+      del t
+      a = (PUSH_SPEED - w.vel[scene.player, 0]) / cfg.dt
+      return jnp.zeros_like(w.pos).at[scene.player, 0].set(a)
+    roll = jax.jit(lambda w: jc.rollout(w, cfg, steps, policy=policy))
+  else:
+    roll = jax.jit(lambda w: jc.rollout(w, cfg, steps))
+  final, traj = roll(world)
+  start = np.asarray(world.pos)[None]
+  errors = front_errors(kind, scene, np.concatenate([start, np.asarray(traj.pos)]))
+  batched = jax.jit(jax.vmap(lambda w: roll(w)[0].pos))
+  worlds = jc.stack([world] * batch)
+  jax.block_until_ready(batched(worlds))
+  cpu = []
+  for _ in range(repeats):
+    t0 = time.process_time()
+    jax.block_until_ready(batched(worlds))
+    cpu.append(time.process_time() - t0)
+  return dict(cpu=float(np.median(cpu)) / (batch * steps), status=int(final.status), **errors)
+
+
+def peer_front(peer, kind: str, scene, setting: dict, steps: int) -> dict:
+  """A Python peer on `scene` at `setting`: errors of its trajectory, seconds per
+  world-step (one thread: wall = CPU)."""
+  ps = scene.peer(speed=PUSH_SPEED if kind == "push" else None)
+  ps["solver"] = setting
+  pos, _ = peer.record(ps, [(steps, {})])
+  timed = peer.time(ps, 0, steps, min_s=0.2, max_reps=20)
+  return dict(cpu=timed["seconds"] / (timed["reps"] * steps), status=0,
+              **front_errors(kind, scene, pos))
+
+
+def peer_fronts(args) -> tuple[list[dict], list[str]]:
+  """Every engine's errors and CPU time per world-step on the dynamic scenes."""
+  table = QUICK_FRONTS if args.quick else FRONT_SETTINGS
+  room_steps, push_steps, batch, repeats = ROOM_SETTLE + ROOM_WINDOW, PUSH_STEPS, FRONT_BATCH, 3
+  if args.smoke:
+    table = {k: v[:1] for k, v in QUICK_FRONTS.items()}
+    room_steps, push_steps, batch, repeats = 12, 12, 2, 1
+  peers, notes = _bench.load_peers(("Box2D", "Box2D v3", "pymunk"), v3_python=args.v3_python)
+  scenes_ = {"room": _bench.room(ROOM_N if not args.smoke else 8), "push": _bench.push_chain()}
+  engines = ["jaxchain"] + [p.name for p in peers]
+  rows = []
+  total = sum(len(table.get(e, ())) for e in engines) * len(scenes_)
+  try:
+    with tqdm(total=total, desc="beside the peers", unit="setting") as bar:
+      for kind, scene in scenes_.items():
+        steps = room_steps if kind == "room" else push_steps
+        for engine in engines:
+          for setting in table.get(engine, ()):
+            if engine == "jaxchain":
+              r = jax_front(kind, scene, setting, steps, batch, repeats)
+            else:
+              peer = next(p for p in peers if p.name == engine)
+              r = peer_front(peer, kind, scene, setting, steps)
+            rows.append(dict(scene=kind, engine=engine, setting=setting_name(engine, setting),
+                             **r))
+            bar.update()
+  finally:
+    for p in peers:
+      if isinstance(p, _bench.PythonPeer):
+        p.close()
+  versions = [f"jaxchain {jc.__version__}"] + [p.version for p in peers]
+  return rows, ["Engines: " + "; ".join(versions) + "."] + notes
+
+
+FRONT_TITLES = {
+    "room": (f"Room of {ROOM_N} at rest: steps {ROOM_SETTLE}-{ROOM_SETTLE + ROOM_WINDOW}",
+             "max penetration over the window; distance of every box to its exact settled place "
+             "(on the box below it in its column) at the end"),
+    "push": (f"Push chain: a player driven at {PUSH_SPEED} u/s into 8 boxes against a wall, "
+             f"{PUSH_STEPS} steps", f"max penetration over the last {PUSH_TAIL} steps, wall "
+             "intrusion over the run, distance of every body to the exact final row at the end"),
+}
+
+
+def front_error(r) -> float:
+  """A front's error: the larger of penetration and distance to the exact state."""
+  return max(r["pen"], r["dist"])
+
+
+def front_lines(fronts, notes) -> list[str]:
+  lines = ["## Beside the peers: dynamic scenes, every engine at a few settings", "",
+           "Gravity -9.81, friction 0.5, dt 1/60, unit boxes (the peers' scenes, "
+           "`benchmarks/peers.py`). Time: CPU seconds per world-step, every thread of the "
+           "process counted, so per core (the peers run one thread; jaxchain "
+           f"`Config.for_world` with the overrides named, {FRONT_BATCH} worlds under `vmap`, "
+           "its XLA threads summed). Error: the larger of penetration and distance to the exact "
+           "state. Box2D keeps boxes a skin apart (0.01 in 2.3) and v3 and pymunk let them sink "
+           "a slop, so their distance to the exact state is bounded below by it.", ""]
+  lines += [f"- {n}" for n in notes] + [""]
+  for kind, (title, what) in FRONT_TITLES.items():
+    sel = [r for r in fronts if r["scene"] == kind]
+    if not sel:
+      continue
+    lines += [f"### {title}", "", f"Errors: {what}.", "",
+              "| engine | setting | us CPU / world-step | max penetration | distance to exact | "
+              "wall intrusion | status |", "|---|---|---|---|---|---|---|"]
+    for r in sel:
+      lines.append(f"| {r['engine']} | {r['setting']} | {r['cpu'] * 1e6:.1f} | {r['pen']:.2e} | "
+                   f"{r['dist']:.2e} | {r['intrusion']:.2e} | {r['status']} |")
+    lines.append("")
+  return lines
+
+
+def plot_fronts(fronts, path) -> None:
+  import matplotlib
+  matplotlib.use("Agg")
+  import matplotlib.pyplot as plt
+  kinds = [k for k in FRONT_TITLES if any(r["scene"] == k for r in fronts)]
+  fig, axes = plt.subplots(1, len(kinds), figsize=(6 * len(kinds), 4.4), squeeze=False)
+  floor = 1e-7
+  for ax, kind in zip(axes.flat, kinds):
+    sel = [r for r in fronts if r["scene"] == kind]
+    for engine in dict.fromkeys(r["engine"] for r in sel):
+      pts = sorted((r for r in sel if r["engine"] == engine), key=lambda r: r["cpu"])
+      ax.plot([r["cpu"] * 1e6 for r in pts], [max(front_error(r), floor) for r in pts], "-o",
+              ms=4, lw=1.2, label=engine)
+      for r in pts:
+        ax.annotate(r["setting"], (r["cpu"] * 1e6, max(front_error(r), floor)), fontsize=6,
+                    alpha=0.7, xytext=(3, 3), textcoords="offset points")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_title(FRONT_TITLES[kind][0], fontsize=9)
+    ax.set_xlabel("us CPU per world-step (per core)", fontsize=8)
+    ax.set_ylabel("error: max(penetration, distance to exact)", fontsize=8)
+    ax.grid(True, which="both", alpha=0.2)
+    ax.legend(fontsize=7)
+  fig.suptitle(f"Error against time per world-step, beside the peers (errors below {floor:g} "
+               f"drawn at {floor:g})", fontsize=10)
+  fig.tight_layout()
+  fig.savefig(path, dpi=110)
+
+
+def write(rows, args, header: list[str], fronts=(), notes=()) -> None:
   out = out_dir(args)
   lines = [
       "# Error against run time", "",
@@ -256,8 +491,12 @@ def write(rows, args, header: list[str]) -> None:
           f"{r['max_pen']:.2e} | {r['mean_pen']:.2e} | {r['ref_dist']:.2e} | {r['com_drift']:.2e} | "
           f"{r['fixed_moved']:.0e} | {'*' if id(r) in front else ''} |")
     lines.append("")
+  if fronts:
+    lines += front_lines(fronts, notes)
   write_result(out, f"{stem(args)}.md", lines, header, echo=False)
   plot(rows, out / f"{stem(args)}.png")
+  if fronts:
+    plot_fronts(fronts, out / f"{stem(args)}_peers.png")
   print("\n".join(header + lines[:8]))
   moved = max(r["fixed_moved"] for r in rows)
   print(f"largest movement of an immovable body over all settings: {moved}")

@@ -24,13 +24,22 @@ average when it was measured, and the median.
   steps. Accuracy only: max penetration between any two bodies over the last 300 steps,
   wall intrusion over the run, jitter (std of x over the last 30 steps).
 
+**Per core**: jaxchain lets XLA use every core, the peers use one thread, and a user with
+C cores can run C peer processes; so the same rooms are measured again with every engine
+pinned to one core (`--cores both`, the default): a child process started with its CPU
+affinity set to one core (`os.sched_setaffinity`, before Python starts, so XLA's thread
+pool and the Box2D v3 worker see one core), interleaved rounds as above, and its rows and
+ratios are a section of the table. `--cores all` measures on every core only; `--cores
+one` pinned only. The table names the CPU model.
+
 Engines that do not import are skipped with a message (`pip install -e .[peers]`
 installs Box2D 2.3, pymunk and Jax2D). Before timing, waits (up to `--wait` s) until no
 other benchmark or pytest runs. Writes `results/peers.md`.
 
-    python benchmarks/peers.py                         # about 7 minutes on 2 quiet cores
+    python benchmarks/peers.py                         # about 15 minutes on 2 quiet cores
     python benchmarks/peers.py --v3-python ~/venvs/box2d-v3/bin/python   # with Box2D v3
     python benchmarks/peers.py --quick                 # the room of 64 only
+    python benchmarks/peers.py --cores all             # every core only (no pinned child)
     python benchmarks/peers.py --smoke --out /tmp/x    # N=8, B=2, a few steps: runs, writes
 """
 
@@ -38,9 +47,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
+import os
+import pathlib
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 
@@ -298,8 +311,17 @@ def main():
   parser.add_argument("--rounds", type=int, default=ROUNDS, help=f"rounds (default {ROUNDS})")
   parser.add_argument("--wait", type=float, default=900.0,
                       help="seconds to wait for other benchmarks to finish before timing")
+  parser.add_argument("--cores", choices=("both", "all", "one"), default="both",
+                      help="measure on every core (all), with every engine pinned to one core "
+                           "(one), or both (default)")
+  parser.add_argument("--pinned-json", default=None, help=argparse.SUPPRESS)  # The child's.
   args = _bench.add_common_args(parser).parse_args()
   run = _bench.Run.start()
+  if args.cores == "one" and args.pinned_json is None:
+    lines = ["# jaxchain beside peer engines, every engine pinned to one core", ""]
+    lines += pinned_section(args)
+    _bench.write_result(_bench.out_dir(args), "peers.md", lines, run)
+    return
   rooms, steps, settle, min_s, max_reps = (QUICK_ROOMS if args.quick else ROOMS), STEPS, SETTLE, MIN_S, MAX_REPS
   push_steps = PUSH_STEPS
   if args.smoke:  # A room of 8 in one world and a batch of 2, a few steps; no wait.
@@ -328,7 +350,55 @@ def main():
   if late:
     notes.append(f"Running at the end of the run: {late}; timings may be disturbed.")
   lines = table(settings, measured, peers, notes, steps, settle, args.rounds, push, push_steps)
+  if args.pinned_json is not None:  # The pinned child: its rows and ratios, for the parent.
+    pathlib.Path(args.pinned_json).write_text(json.dumps(dict(
+        cpus=sorted(os.sched_getaffinity(0)), rooms=room_lines(lines), targets=target_lines(lines))))
+    return
+  if args.cores == "both":
+    lines += [""] + pinned_section(args)
   _bench.write_result(_bench.out_dir(args), "peers.md", lines, run)
+
+
+PINNED_CPU = 0  # The core the per-core run pins every engine to.
+
+
+def pinned_section(args) -> list[str]:
+  """The same measurement in a child process pinned to one core (its CPU affinity set
+  before it starts: XLA's thread pool, the Python peers and the Box2D v3 worker all run
+  on `PINNED_CPU`): the room rows and the ratios, as lines of a section."""
+  argv = [sys.executable, str(pathlib.Path(__file__).resolve()), "--rounds", str(args.rounds),
+          "--wait", "0"]
+  argv += ["--quick"] * args.quick + ["--smoke"] * args.smoke
+  if args.v3_python:
+    argv += ["--v3-python", args.v3_python]
+  header = [f"## Per core: every engine pinned to CPU {PINNED_CPU} ({_bench.cpu_model()})", ""]
+  with tempfile.TemporaryDirectory() as tmp:
+    out = pathlib.Path(tmp) / "pinned.json"
+    argv += ["--out", tmp, "--pinned-json", str(out)]
+    print(f"per core: {' '.join(argv[1:])} (pinned to CPU {PINNED_CPU})", file=sys.stderr)
+    done = subprocess.run(argv, preexec_fn=lambda: os.sched_setaffinity(0, {PINNED_CPU}))
+    if done.returncode or not out.exists():
+      return header + [f"The pinned run failed (exit {done.returncode}); no per-core figures."]
+    child = json.loads(out.read_text())
+  return header + [
+      f"The same rooms, windows and rounds in a child process whose CPU affinity is "
+      f"{child['cpus']} from its start (`os.sched_setaffinity` before Python starts): jaxchain's "
+      "XLA threads, the Python peers and the Box2D v3 worker share that one core, so each "
+      "figure is per core. A machine with C cores runs C such processes.", "",
+  ] + child["rooms"] + ["", "Ratios per core (median of rounds):", ""] + child["targets"]
+
+
+def room_lines(lines: list[str]) -> list[str]:
+  """The room table of `table`'s lines (its header row to its last row)."""
+  start = next(k for k, line in enumerate(lines) if line.startswith("| engine | N |"))
+  end = next(k for k in range(start, len(lines)) if not lines[k].startswith("|"))
+  return lines[start:end]
+
+
+def target_lines(lines: list[str]) -> list[str]:
+  """The ratio lines of `table`'s "Targets" section."""
+  start = lines.index("## Targets")
+  return [line for line in lines[start:] if line.startswith("- room of")]
 
 
 # --- Output ----------------------------------------------------------------------------
@@ -350,7 +420,8 @@ def table(settings, measured, peers, notes, steps, settle, n_rounds, push, push_
       "4 substeps (its soft-step solver's default). pymunk: default 10 iterations (and its "
       "default collision slop 0.1). Jax2D: default `StaticSimParams` (10 iterations, warm "
       "starting) and `SimParams`. jaxchain: `Config.for_world(world)` with friction 0.5 on "
-      "every body. Peers run on one thread; jaxchain and Jax2D let XLA use both cores.", "",
+      "every body. Peers run on one thread; jaxchain and Jax2D let XLA use every core "
+      f"({len(os.sched_getaffinity(0))} here). CPU: {_bench.cpu_model()}.", "",
   ]
   lines += [f"- {n}" for n in notes] + ([""] if notes else [])
   lines += [

@@ -93,7 +93,7 @@ PLAN = (
     Bench("error_vs_time_quick", ("--quick",), None, (900, 900),
           ("error_vs_time_quick.md", "error_vs_time_quick.png", "error_vs_time_quick.json"),
           script="error_vs_time", in_quick=False),
-    Bench("peers", (), ("--quick",), (420, 150), ("peers.md",), PEERS),
+    Bench("peers", (), ("--quick",), (900, 300), ("peers.md",), PEERS),
     Bench("targets", (), None, (360, 360), ("targets.md",)),
     Bench("against", ("--against", "b26b41f", "6272a46", "--batch", "1024", "--steps", "200",
                       "--rounds", "2"), None, (300, 300), ("against.md",)),
@@ -188,7 +188,7 @@ def run_plan(plan: list[Bench], quick: bool, out: pathlib.Path | None, v3_python
                        why=f"needs {', '.join(missing)}"))
       continue
     argv = b.argv(quick)
-    if b.name == "peers" and v3_python:
+    if b.file in ("peers.py", "error_vs_time.py") and v3_python:
       argv += ["--v3-python", v3_python]
     if out is not None:
       argv += ["--out", str(out)]
@@ -312,7 +312,8 @@ def main(argv=None) -> int:
   parser.add_argument("--skip", nargs="+", metavar="NAME", help="leave these out")
   parser.add_argument("--list", action="store_true", help="print the plan and estimated times")
   parser.add_argument("--v3-python", default=None, metavar="PATH",
-                      help="passed on to peers.py: an interpreter with box2d-python for Box2D v3")
+                      help="passed on to peers.py and error_vs_time.py: an interpreter with "
+                           "box2d-python for Box2D v3")
   parser.add_argument("--timeout", type=float, default=SMOKE_TIMEOUT_S,
                       help=f"--smoke: seconds a script may run (default {SMOKE_TIMEOUT_S:g})")
   args = parser.parse_args(argv)

@@ -28,6 +28,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -225,3 +226,17 @@ def test_refresh_plans_every_script_and_names_every_result(monkeypatch):
   listed = subprocess.run([sys.executable, str(BENCHMARKS / DRIVER), "--list"], capture_output=True,
                           text=True, check=True).stdout
   assert all(b.name in listed for b in refresh.PLAN) and "total" in listed
+
+
+def test_the_workers_take_each_engines_accuracy_setting(monkeypatch):
+  """`scene["solver"]` sets each peer's accuracy (error_vs_time's fronts): fewer Box2D
+  iterations and fewer pymunk iterations change a push chain's trajectory."""
+  bench = _bench_module(monkeypatch, "_bench")
+  scene = bench.push_chain().peer(speed=2.0)
+  for name, cheap, default in (("Box2D", {"iterations": [1, 1]}, {"iterations": [8, 3]}),
+                               ("pymunk", {"iterations": 1}, {"iterations": 10})):
+    pytest.importorskip({"Box2D": "Box2D", "pymunk": "pymunk"}[name])
+    peer = bench.PythonPeer(name)
+    runs = [peer.record({**scene, "solver": s}, [(150, {})])[0] for s in (cheap, default, None)]
+    assert not np.array_equal(runs[0], runs[1]), name
+    np.testing.assert_array_equal(runs[1], runs[2], err_msg=name)  # The default is the default.
