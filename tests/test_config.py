@@ -268,3 +268,23 @@ def test_neighbor_table_fields_are_stored_as_python_values():
   assert cfg.neighbors == 10 and type(cfg.neighbors) is int
   assert cfg.margin == 0.25 and type(cfg.margin) is float
   assert cfg == jc.Config(neighbors=10, margin=0.25) and hash(cfg) == hash(cfg.replace())
+
+
+def test_for_world_foresees_the_stacks_gravity_builds():
+  # Issue 42 item 3: the rooms of falling boxes touch nothing at the start, so depth 8
+  # (from the chains now) was cut short once they settled into columns of 16, 32 and 64
+  # (DEPTH_EXHAUSTED, IMPULSES_SCALED, OVERLAP_LEFT). Under gravity the tallest column
+  # sizes the depth.
+  for n, column in ((256, 16), (1024, 32), (4096, 64)):
+    world = jc.World.create(*(getattr(scenes.lattice_room(n), k) for k in ("pos", "half", "mass")))
+    assert jc.sizing.stack_bound(world, (0.0, -9.81)) == column
+    assert jc.Config.for_world(world).depth == column
+  # Two columns of 12 boxes, 0.5 apart, touching sideways only at their edges (no stack).
+  pos = [[0.0, 0.5 + 1.5 * k] for k in range(12)] + [[1.0, 0.5 + 1.5 * k] for k in range(12)]
+  world = jc.World.create(pos, [0.5, 0.5], 1.0)
+  assert jc.sizing.stack_bound(world, (0.0, -9.81)) == 12
+  assert jc.sizing.stack_bound(world, (-9.81, 0.0)) == 2  # Gravity along x: rows of 2.
+  assert jc.sizing.stack_bound(world, (0.0, 0.0)) == 0
+  assert jc.Config.for_world(world.replace(gravity=jnp.zeros(2))).depth == 8  # No stacks.
+  batch = jc.stack([world, world.replace(gravity=jnp.array([-9.81, 0.0]))])
+  assert jc.sizing.stack_bound(batch, batch.gravity) == 12  # Each world's own gravity.

@@ -390,3 +390,21 @@ def test_closed_loop_arguments_are_checked():
 
 def _bad_policy(world, t):
   return jnp.zeros((2,))
+
+
+def test_boxes_falling_into_columns_settle_unflagged_under_for_world():
+  # Issue 42 item 3: nothing touches at the start; once settled, each column is a chain of
+  # 12 boxes on the floor. Depth 8 (the chains at the start) cuts it short; for_world now
+  # sizes the depth from the columns gravity builds (sizing.stack_bound).
+  pos = [[0.0, -0.5]] + [[2.0 * c, 1.0 + 1.5 * k] for c in range(2) for k in range(12)]
+  half = [[5.0, 0.5]] + [[0.5, 0.5]] * 24
+  world = jc.World.create(pos, half, [INF] + [1.0] * 24, friction=0.5)
+  cfg = jc.Config.for_world(world)
+  assert cfg.depth == 12
+  short = jc.rollout(world, cfg.replace(depth=8), 150)[0]
+  assert int(short.status) & jc.status.DEPTH_EXHAUSTED
+  final = jc.rollout(world, cfg, 150)[0]
+  assert int(final.status) == 0, jc.check(final)
+  # Settled: every box on the one below it, in its column.
+  y = np.asarray(final.pos)[1:, 1].reshape(2, 12)
+  np.testing.assert_allclose(y, np.broadcast_to(0.5 + np.arange(12.0), (2, 12)), atol=2e-3)

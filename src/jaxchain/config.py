@@ -191,9 +191,12 @@ class Config:
 
     Looks at the (host) world, or a padded batch of worlds, and switches off:
     immovable-body handling when no active body is immovable; chain depth beyond
-    what the scene can use: `min(movable bodies, max(8, 2 * longest chain))`, where
-    the longest chain is measured over the bodies touching now (a stack of 20 gets
-    20, a room of loose boxes 8, two boxes 2); and substeps
+    what the scene can use: `min(movable bodies, max(8, 2 * longest chain, tallest
+    stack))`, where the longest chain is measured over the bodies touching now (a
+    stack of 20 gets 20, a room of loose boxes 8, two boxes 2) and, under gravity, the
+    tallest stack is the most movable bodies in one column along gravity
+    (`sizing.stack_bound`: boxes falling into columns of 16 get 16 though nothing
+    touches yet); and substeps
     beyond what the current speeds need to keep every body from moving, in one
     substep, its own half-extent plus the thinnest body's (the tunnelling limit;
     see `status.FAST_BODY`; later speed-ups are not foreseen), with each world's

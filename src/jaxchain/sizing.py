@@ -28,7 +28,8 @@ from jaxchain.core import pairs as core_pairs
 from jaxchain.core.layout import NUM_DIRECTIONS
 
 __all__ = ["DENSE_MAX_BODIES", "MAX_SUBSTEPS", "MIN_LINKS", "MIN_NEIGHBORS", "allocate",
-           "for_world", "link_bound", "measure", "measure_neighbors", "measure_table", "neighbor_sizing"]
+           "for_world", "link_bound", "measure", "measure_neighbors", "measure_table", "neighbor_sizing",
+           "stack_bound"]
 
 # Worlds with at most this many body slots use dense all-pairs candidates in
 # `for_world` and "auto". Measured with compact link tables
@@ -137,12 +138,40 @@ def for_world(cls, world, /, **overrides):
     chain_found, links_found = measure(world.pos, world.half, world.active, movable,
                                        np.int32(cap), spec=chosen.grid if uses_grid else None,
                                        skin=base.skin)
-    derived["depth"] = min(cap, max(cls.depth, 2 * int(np.max(chain_found, initial=0))))
+    stacks = stack_bound(world, gravity) if base.gravity else 0
+    derived["depth"] = min(cap, max(cls.depth, 2 * int(np.max(chain_found, initial=0)), stacks))
     row = chosen.grid.row_size if uses_grid else n
     links = max(MIN_LINKS, link_bound(world), int(np.max(links_found, initial=0)))
     derived["links"] = links if links < row else None
   derived.update({k: v for k, v in overrides.items() if k in derived_keys})
   return base.replace(**derived)
+
+
+def stack_bound(world, gravity) -> int:
+  """The tallest stack gravity can build (host): the most movable bodies whose extents
+  across gravity's axis overlap one body's (itself included), over the bodies of each
+  world. Under gravity a body comes to rest on what lies below it in its column, so a
+  chain along gravity is never longer; a room of boxes falling into columns of 16 needs
+  a depth of 16 once settled, though nothing touches at the start. Gravity's axis is
+  the larger component of each world's `gravity` (`[2]` or `[B, 2]`); 0 without gravity.
+  O(n log n) per world (sorted extents)."""
+  pos, half = np.asarray(world.pos, np.float64), np.asarray(world.half, np.float64)
+  movable = np.asarray(world.active) & (np.asarray(world.inv_mass) > 0)
+  grav = np.broadcast_to(np.asarray(gravity, np.float64), pos.shape[:-2] + (2,))
+  if pos.ndim == 2:
+    pos, half, movable, grav = pos[None], half[None], movable[None], grav[None]
+  best = 0
+  for p, h, m, g in zip(pos, half, movable, grav):
+    if not m.any() or not np.any(g != 0):
+      continue
+    across = 0 if abs(g[1]) >= abs(g[0]) else 1  # Columns along gravity, by this axis.
+    lo, hi = (p[m, across] - h[m, across]), (p[m, across] + h[m, across])
+    # Body i's column: the j with lo_j < hi_i and hi_j > lo_i (strict: touching sides
+    # never stack).
+    count = (np.searchsorted(np.sort(lo), hi, side="left")
+             - np.searchsorted(np.sort(hi), lo, side="right"))
+    best = max(best, int(count.max()))
+  return best
 
 
 def link_bound(world) -> int:
