@@ -234,13 +234,18 @@ def _has_colour(frame, rgb, tol=8):
   return bool(np.any(np.all(np.abs(frame.astype(int) - rgb) <= tol, axis=-1)))
 
 
-def test_demo_gif_tiles_the_first_worlds(tmp_path, capsys):
+def test_demo_gif_tiles_the_first_worlds(tmp_path, capsys, monkeypatch):
   path = tmp_path / "demo.gif"
+  # A cache directory named, and --no-cache: nothing is kept there.
+  monkeypatch.delenv("JAXCHAIN_CACHE", raising=False)
+  monkeypatch.setenv("JAXCHAIN_CACHE_DIR", str(tmp_path / "cache"))
   # Depth 0, no converging loops, no friction: the smallest compile (the GIF is tested here).
   assert cli.main(["demo", "--batch", "3", "--steps", "20", "--chunk", "10", "--no-progress",
                    "--depth", "0", "--no-converge", "--friction", "0", "--gif", str(path),
-                   "--gif-worlds", "2", "--gif-size", "48x80", "--gif-every", "5"]) == 0
+                   "--gif-worlds", "2", "--gif-size", "48x80", "--gif-every", "5",
+                   "--no-cache"]) == 0
   out = capsys.readouterr().out
+  assert "compile cache         off\n" in out and not (tmp_path / "cache").exists()
   assert "row pushed" in out and f"gif                   {path}: 2 worlds, 5 frames" in out
   frames, durations = _gif_frames(path)
   assert frames.shape == (5, 48, 2 * 80 + cli.GIF_BORDER, 3)  # The start and steps 5 to 20.
@@ -319,7 +324,7 @@ def test_a_second_run_loads_the_program_from_the_cache(tmp_path, capsys):
   assert second["first_compile_s"] == first["compile_s"]
   for figures in (first, second):  # The cached program gives the same answers, to the bit.
     _same_worlds(figures["final_world"], plain["final_world"])
-  _same_worlds(other["final_world"], cli.demo(**{**SMALL, "depth": 1})["final_world"])
+  assert not np.array_equal(other["final_world"].pos, plain["final_world"].pos)
   assert len(list((tmp_path / "programs").glob("*.pkl"))) == 2
   assert any((tmp_path / "xla").iterdir())  # XLA's executables, in JAX's cache.
   out = capsys.readouterr().out
@@ -332,14 +337,13 @@ def test_the_level_demo_keys_its_program_by_what_the_policy_closes_over(tmp_path
   # The push and the player are constants of the level demo's policy, not data: a run with
   # another push must not load the program of the first.
   level = dict(SMALL, batch=1, level="sokoban1")
-  with compile_cache.persistent(tmp_path):
-    cli.demo(**level, cache=tmp_path)
-    pushed = cli.demo(**{**level, "push": 5.0}, cache=tmp_path)
-    again = cli.demo(**{**level, "push": 5.0}, cache=tmp_path)
-  assert [pushed["compile_source"], again["compile_source"]] == ["compiled", "cache"]
-  plain = cli.demo(**{**level, "push": 5.0})
-  for figures in (pushed, again):
-    _same_worlds(figures["final_world"], plain["final_world"])
+  first = cli.demo(**level, cache=tmp_path)
+  pushed = cli.demo(**{**level, "push": 5.0}, cache=tmp_path)
+  again = cli.demo(**{**level, "push": 5.0}, cache=tmp_path)
+  assert [first["compile_source"], pushed["compile_source"], again["compile_source"]] == [
+      "compiled", "compiled", "cache"]
+  _same_worlds(again["final_world"], pushed["final_world"])
+  assert not np.array_equal(first["final_world"].pos, pushed["final_world"].pos)
 
 
 def test_a_damaged_cached_program_is_compiled_again(tmp_path, capsys):
@@ -379,9 +383,6 @@ def test_the_console_script_compiles_once_per_machine(tmp_path):
   assert all(r.returncode == 0 for r in runs), runs[-1].stderr
   assert "compile cache         saved to" in runs[0].stdout
   assert "compile cache         loaded from" in runs[1].stdout
-  off = subprocess.run(argv + ["--no-cache"], capture_output=True, text=True, env=env,
-                       timeout=300)
-  assert "compile cache         off" in off.stdout
-  # Everything after the timings is the same in all three runs.
+  # Everything after the timings is the same in both runs.
   tail = lambda r: r.stdout.split("final max penetration")[1]
-  assert tail(runs[0]) == tail(runs[1]) == tail(off)
+  assert tail(runs[0]) == tail(runs[1])
