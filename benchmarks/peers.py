@@ -327,10 +327,14 @@ def main():
   if args.smoke:  # A room of 8 in one world and a batch of 2, a few steps; no wait.
     rooms, steps, settle, min_s, max_reps, push_steps = {8: 2}, 2, 4, 0.0, 1, 8
     args.rounds, args.wait = min(args.rounds, 2), 0.0
+    if args.pinned_json is not None:  # The pinned child's smoke: its plumbing, one compile
+      rooms, args.rounds = {8: 1}, 1  # of the room (the parent's smoke runs the rest).
   if args.rounds < 1 or settle % steps:
     parser.error(f"--rounds must be >= 1 (got {args.rounds}) and SETTLE ({settle}) a multiple of "
                  f"STEPS ({steps})")
   peers, notes = load_peers(v3_python=args.v3_python)
+  if args.smoke and args.pinned_json is not None:  # Jax2D's programs compile in the parent's.
+    peers = [p for p in peers if p.name != "Jax2D"]
   for line in notes:
     print(line, file=sys.stderr)
   try:

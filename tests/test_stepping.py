@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import example, given
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 import jaxchain as jc
@@ -292,6 +292,9 @@ def depth_cut_scenes(draw):
   return world.pad(CUT_CAPACITY), 40
 
 
+# Each example checks every step of its trajectory (8 to 60, each stepped twice at -O0),
+# so 10 drawn scenes and the three found before check ~600 steps (issue 41: the suite).
+@settings(max_examples=10)
 @given(depth_cut_scenes())
 @example((_stack(12, 0.1, np.ones(12)).pad(CUT_CAPACITY), 60))  # Unflagged at 0.136 u/s before.
 @example((_stack(10, 0.1, np.logspace(0, 4, 10)).pad(CUT_CAPACITY), 40))  # 0.138 u/s.
@@ -365,20 +368,8 @@ def test_policy_reads_the_world_under_jit_and_vmap():
     assert 2 <= len(takeoff) <= 8 and grounded.sum() < len(grounded) / 2
 
 
-def test_grad_through_a_closed_loop_matches_finite_differences():
-  world = _player_and_box()
-
-  @jax.jit
-  def box_x(gain):
-    def track(w, t):  # A speed controller with a differentiable gain.
-      del t
-      return jnp.zeros_like(w.pos).at[0, 0].set(gain * (2.0 - w.vel[0, 0]))
-    return jc.rollout(world, CLOSED, 40, policy=track)[0].pos[1, 0]
-
-  g = jax.grad(box_x)(5.0)
-  fd = (box_x(5.01) - box_x(4.99)) / 0.02
-  assert np.isfinite(g) and g > 0
-  np.testing.assert_allclose(g, fd, rtol=0.05)
+# The gradient through a closed loop against central differences: docs/toolkit.md's
+# "Closed-loop rollouts" example checks it (tests/test_readme.py), one program for both.
 
 
 def test_closed_loop_arguments_are_checked():
