@@ -29,7 +29,7 @@ import time
 import pytest
 
 BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
-CACHE_HIT = "/jax/compilation_cache/cache_hits"  # With JAX_COMPILATION_CACHE_DIR set.
+CACHE_HIT = "/jax/compilation_cache/cache_hits"  # The suite's run cache (tests/conftest.py).
 DIR = os.environ.get("JAXCHAIN_SUITE_TIMING")
 _lock = threading.Lock()
 _compiles = [0, 0.0, 0]  # Count and seconds, persistent-cache hits, this process, so far.

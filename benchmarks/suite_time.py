@@ -197,7 +197,7 @@ def tables(meta: dict, records: list[dict], *, top: int) -> str:
       "the subprocesses a test waited for (the benchmark smoke runs, the CLI, x64, sharding, the",
       "docs build); compiles are XLA backend compiles (`jax.monitoring`), in the worker and, apart,",
       "in the tests' Python subprocesses; cache hits are programs loaded from JAX's persistent",
-      "compilation cache instead, if `JAX_COMPILATION_CACHE_DIR` is set (the suite sets none).",
+      "compilation cache instead (the suite keeps one per run: `tests/conftest.py`).",
       "Wall seconds are per test as the worker saw them; the",
       "total wall time is the whole command's, and depends on the machine's load (given).",
       "",

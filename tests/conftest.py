@@ -28,12 +28,28 @@ get the same XLA flags, and tests' subprocesses inherit them from the environmen
 
 import gc
 import os
+import shutil
+import tempfile
 
 from tests.xla_flags import SUITE_XLA_FLAGS
 
 for _flag in SUITE_XLA_FLAGS:  # A flag the caller set keeps the caller's value.
   if _flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}".strip()
+
+# One run's XLA executables in JAX's persistent compilation cache, in a directory this run
+# makes and removes (`pytest_unconfigure`): pytest-xdist's workers and the tests'
+# subprocesses (the benchmark smoke runs, the CLI, the README's commands) inherit it from
+# the environment. A program the suite compiles again (another `jax.jit` of the same
+# function, the same step in another module after `_release_compiled_programs`, the demo in
+# another subprocess) is loaded instead: about a third of the suite's compiles. A fresh
+# clone starts empty, as every run does. `JAX_COMPILATION_CACHE_DIR` set by the caller is
+# used as it is (and kept).
+SUITE_XLA_CACHE = "JAXCHAIN_SUITE_XLA_CACHE"  # The directory this run made, to remove.
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ and not os.environ.get("PYTEST_XDIST_WORKER"):
+  os.environ["JAX_COMPILATION_CACHE_DIR"] = os.environ[SUITE_XLA_CACHE] = tempfile.mkdtemp(
+      prefix="jaxchain-suite-xla-")
+  os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 # The command line keeps its compiled programs in a cache directory of the user's
 # (`jaxchain.compile_cache`): the suite's runs do not (tests/test_cli.py's cache tests name
@@ -124,3 +140,10 @@ def _release_compiled_programs():
   yield
   jax.clear_caches()
   gc.collect()
+
+
+def pytest_unconfigure(config):
+  """The run's XLA cache directory removed, by the process that made it."""
+  del config
+  if not os.environ.get("PYTEST_XDIST_WORKER") and os.environ.get(SUITE_XLA_CACHE):
+    shutil.rmtree(os.environ.pop(SUITE_XLA_CACHE), ignore_errors=True)

@@ -310,7 +310,20 @@ def _same_worlds(a, b):
     np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
 
 
-def test_a_second_run_loads_the_program_from_the_cache(tmp_path, capsys):
+@pytest.fixture
+def no_xla_cache_of_the_suite():
+  """JAX as a user has it who set no cache directory: the suite's run sets one for every
+  process (tests/conftest.py), and `compile_cache.persistent` leaves a user's alone."""
+  from jax.experimental.compilation_cache import compilation_cache
+  saved = jax.config.jax_compilation_cache_dir
+  jax.config.update("jax_compilation_cache_dir", None)
+  compilation_cache.reset_cache()
+  yield
+  jax.config.update("jax_compilation_cache_dir", saved)
+  compilation_cache.reset_cache()
+
+
+def test_a_second_run_loads_the_program_from_the_cache(tmp_path, capsys, no_xla_cache_of_the_suite):
   plain = cli.demo(**SMALL)
   assert plain["compile_source"] == "off"
   with compile_cache.persistent(tmp_path):
@@ -375,7 +388,9 @@ def test_the_cache_directory_comes_from_the_environment(env, wanted, monkeypatch
 def test_the_console_script_compiles_once_per_machine(tmp_path):
   # As a user runs it, twice: the second process loads the program and says so.
   env = {**os.environ, "JAX_PLATFORMS": "cpu", "JAXCHAIN_CACHE_DIR": str(tmp_path)}
-  env.pop("JAXCHAIN_CACHE", None)
+  for name in ("JAXCHAIN_CACHE", "JAX_COMPILATION_CACHE_DIR",  # The suite's (conftest).
+               "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"):
+    env.pop(name, None)
   argv = [sys.executable, "-m", "jaxchain.cli", "demo", "--batch", "2", "--steps", "6",
           "--chunk", "6", "--no-progress", "--depth", "0", "--no-converge", "--friction", "0"]
   runs = [subprocess.run(argv, capture_output=True, text=True, env=env, timeout=300)
