@@ -453,3 +453,28 @@ def test_a_neighbor_table_is_kept_within_half_its_margin_and_rebuilt_past_it():
   fresh = refresh_fn(empty, pos, pos, worlds, cfg)
   np.testing.assert_array_equal(fresh.cand.mask, table.cand.mask)
   np.testing.assert_array_equal(fresh.cand.idx, table.cand.idx)
+
+
+def test_a_cell_filling_up_gives_step_and_rollout_one_answer_and_no_flag():
+  # Issue 44 item 6: a grid of cell capacity 2 with a neighbour table; box 2 drifts at
+  # 1.5 u/s into the cell of boxes 0 and 1 (step 2) and hits box 1 (step 5). The step loop
+  # builds its table every step: from step 2 the full cell dropped box 2 (CELL_OVERFLOW),
+  # while the rollout kept its exact table (nothing set) until it rebuilt at step 4; and
+  # both lost the pair 1-2, so box 2 stopped dead on box 1, which never moved. A full
+  # cell is built again with RETRY times the capacity: both paths give the inelastic hit
+  # (1 and 2 at -0.75 u/s), bit for bit, with no bit set.
+  spec = broadphase.GridSpec(origin=(0.0, 0.0), cell=1.0, shape=(6, 6), reach=0.1,
+                             cell_capacity=2, static_capacity=1, static_entries=4)
+  cfg = jc.Config(gravity=False, friction=False, immovable=False, broadphase="grid", grid=spec,
+                  neighbors=2, margin=0.2, depth=1, closing=0)  # The smallest step.
+  world = jc.World.create([[2.3, 2.5], [2.7, 2.5], [3.05, 2.5]], [0.1, 0.1], 1.0,
+                          vel=[[0.0, 0.0], [0.0, 0.0], [-1.5, 0.0]], gravity=(0.0, 0.0))
+  steps = 8
+  final, traj = jc.rollout(world, cfg, steps, record=("status",))
+  w = world
+  for t in range(steps):
+    w = jc.step(w, cfg)
+    assert int(w.status) == int(traj.status[t]) == 0, (t, int(w.status), int(traj.status[t]))
+    assert np.array_equal(np.asarray(w.pos), np.asarray(traj.pos[t])), t
+  np.testing.assert_allclose(np.asarray(final.vel)[:, 0], [0.0, -0.75, -0.75], atol=1e-6)
+  assert float(final.pos[1, 0]) < 2.7 - 0.02  # Box 1 pushed along.

@@ -291,6 +291,28 @@ def test_raycast_gradients_are_finite_for_axis_aligned_rays():
   assert np.isfinite(g).all()
 
 
+def test_raycast_gradients_are_finite_for_tiny_directions():
+  # Issue 44 item 9: a tiny direction (1e-30, -1e-30) hit as (1, -1) does, but every
+  # gradient of the cast was NaN: JAX's rules for the normalisation and for 1 / u go
+  # through scale ** -2 and u ** -2 (1e60: inf in float32), and 0 * inf is NaN, also
+  # along the axis a ray (1, -1e-30) nearly runs along. The distance does not depend on
+  # the direction's length, so its gradient at s d is that at d over s.
+  w = _boxes()
+  grad = jax.jit(jax.grad(lambda o, d: jc.raycast(w, o, d).distance, argnums=(0, 1)))
+  origin = jnp.array([-1.0, 2.0])  # Along (1, -1): the floor at distance sqrt(2) * 2.
+  g_origin, g_dir = grad(origin, jnp.array([1.0, -1.0]))
+  for scale in (1e-30, 1e-20, 1e-12):
+    got = grad(origin, scale * jnp.array([1.0, -1.0]))
+    assert all(np.isfinite(x).all() for x in got), scale
+    np.testing.assert_allclose(got[0], g_origin, rtol=1e-6)
+    np.testing.assert_allclose(got[1] * scale, g_dir, rtol=1e-5)
+  # Nearly axis-aligned: from (0, 0.5) along (1, -1e-30) into the wall at x = 3.
+  got = grad(jnp.array([0.0, 1.5]), jnp.array([1.0, -1e-30]))
+  assert all(np.isfinite(x).all() for x in got)
+  np.testing.assert_allclose(got[0], [-1.0, 0.0], **EXACT)
+  np.testing.assert_allclose(got[1], [0.0, 0.0], atol=1e-6)  # 3 sqrt(1 + dy^2): 3 dy.
+
+
 def test_raycast_vmap_over_rays_and_worlds():
   w = _boxes()
   ys = jnp.array([0.3, 0.5, 0.74, 1.0, 2.5])

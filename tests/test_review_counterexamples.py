@@ -194,15 +194,14 @@ def test_reference_friction_never_adds_energy():
   assert energy(pos, vel) <= energy(pos0, vel0) + 1e-9
 
 
-@pytest.mark.xfail(strict=True, reason="JAX and reference disagree on a box exactly fitting a "
-                   "corridor: the reference calls it crushed (no friction), JAX applies friction")
 def test_a_box_sliding_in_a_corridor_of_its_height_matches_the_reference():
   # A box (half 0.5, friction 0.5) slides at 2 u/s between a floor and a ceiling exactly
-  # 1 apart. reference.step finds the box touching both after resolving, calls the link
-  # crushed and gives it no normal impulse and no friction: 2.0 u/s every step. jc.step
-  # builds links before resolving (0.0027 gap to the ceiling), applies floor friction
-  # (1.918, 1.837, 1.755) and sets no CRUSHED bit. docs/physics.md: a box that fits
-  # exactly between two immovable faces while gravity presses it counts as crushed.
+  # 1 apart (a player in a one-tile tunnel). reference.step found the box touching both
+  # after resolving, called the link crushed and gave it no normal impulse and no
+  # friction: 2.0 u/s every step. Fixed (issue 44 item 1): a crush needs a push into both
+  # sides; gravity presses the box onto the floor only (its motion opens 0.0027 to the
+  # ceiling), so it rests on the floor and friction acts: 1.918, 1.837, 1.755, in both,
+  # and no CRUSHED bit.
   world = jc.World.create([[0.0, 0.5], [0.0, -0.5], [0.0, 1.5]],
                           [[0.5, 0.5], [5.0, 0.5], [5.0, 0.5]], [1.0, INF, INF],
                           vel=[[2.0, 0.0], [0.0, 0.0], [0.0, 0.0]], friction=0.5)
@@ -214,3 +213,5 @@ def test_a_box_sliding_in_a_corridor_of_its_height_matches_the_reference():
                               friction=0.5)
     np.testing.assert_allclose(traj.vel[t], vel, atol=1e-5, err_msg=f"step {t}")
     np.testing.assert_allclose(traj.pos[t], pos, atol=1e-5, err_msg=f"step {t}")
+  assert vel[0, 0] == pytest.approx(2.0 - steps * 0.5 * G * DT, abs=1e-6)
+  assert not np.asarray(final.crushed).any() and int(final.status) == 0

@@ -293,3 +293,43 @@ def test_take_is_one_flat_gather_and_matches_the_split_lanes(monkeypatch):
 def test_sharding_docstring_examples():
   result = doctest.testmod(sharding, optionflags=doctest.ELLIPSIS)
   assert result.attempted > 0 and result.failed == 0
+
+
+def test_step_rollout_and_resolve_run_inside_shard_map():
+  """Issue 44 item 7: inside `jax.shard_map` (its `check_vma` on, the default) `jc.step`,
+  `jc.rollout` and `jc.resolve` raised a TypeError: the core's loops (passes, closing
+  stage, chain hops, friction rounds, substeps, the rollout's scan and neighbour table)
+  start from constants, which vary over no mesh axis, and end with values computed
+  from the worlds, which vary over the axis the batch is split over;
+  `core.layout.vary` casts those initial carries. On this process's one device (a mesh
+  of one, explicit axes as `jax.make_mesh` builds it), one program (one compile): the
+  exact answers, and the step's equal to the rollout's first step."""
+  from jax.sharding import NamedSharding, PartitionSpec as P
+
+  import jaxchain as jc
+  # Two boxes meeting head-on (world 0: overlapping by 0.1, closing at 1 u/s), and the
+  # same 0.1 apart (world 1): the smallest step with loops (the closing stage's, the
+  # chain's hops, the impulses' refinement; friction's rounds and the substeps' carry
+  # the same `vary`).
+  world = jc.World.create([[0.0, 0.0], [0.9, 0.0]], [0.5, 0.5], 1.0,
+                          vel=[[1.0, 0.0], [0.0, 0.0]], gravity=(0.0, 0.0))
+  batch = jc.stack([world, world.replace(pos=world.pos.at[0, 0].set(-0.2))])
+  cfg = jc.Config.for_world(batch)
+  run = lambda w: (jc.step(w, cfg), jc.resolve(w, cfg), jc.rollout(w, cfg, 2))
+  mesh = jax.make_mesh((1,), ("worlds",))
+  sharded = jax.device_put(batch, NamedSharding(mesh, P("worlds")))
+  stepped, resolved, (final, traj) = jax.jit(jax.shard_map(
+      run, mesh=mesh, in_specs=P("worlds"), out_specs=P("worlds")))(sharded)
+  dt = cfg.dt
+  # World 0: the overlap (0.1 + dt) split in half, both at the common velocity 0.5 (the
+  # overlap already there adds none); world 1 moves freely.
+  x0 = dt - (0.1 + dt) / 2
+  np.testing.assert_allclose(stepped.pos[:, :, 0], [[x0, 0.9 + dt - x0], [-0.2 + dt, 0.9]],
+                             atol=1e-6)
+  np.testing.assert_allclose(stepped.vel[:, :, 0], [[0.5, 0.5], [1.0, 0.0]], atol=1e-6)
+  np.testing.assert_allclose(resolved.pos[:, :, 0], [[-0.05, 0.95], [-0.2, 0.9]], atol=1e-6)
+  np.testing.assert_allclose(final.pos[:, :, 0], [[x0 + dt / 2, 0.9 + dt - x0 + dt / 2],
+                                                  [-0.2 + 2 * dt, 0.9]], atol=1e-6)
+  for name in ("pos", "vel"):
+    assert np.array_equal(getattr(traj, name)[:, 0], getattr(stepped, name))
+  assert not np.asarray(stepped.status).any() and not np.asarray(final.status).any()

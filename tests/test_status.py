@@ -28,11 +28,11 @@ def test_bits_trace_as_int32():
 
 def test_check_reports_each_bit_and_unknown_bits():
   world = jc.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0)
-  code = np.int32(status.CELL_OVERFLOW | status.NON_FINITE | 1 << 20)
+  code = np.int32(status.CELL_OVERFLOW | status.NON_FINITE | 1 << 30)
   assert jc.check(world.replace(status=code)) == [
       f"world 0: {status.MESSAGES[status.CELL_OVERFLOW]}",
       f"world 0: {status.MESSAGES[status.NON_FINITE]}",
-      "world 0: unknown status bits 0x100000"]
+      "world 0: unknown status bits 0x40000000"]
 
 
 def test_motion_rounded_away_far_from_the_origin_is_flagged():
@@ -117,3 +117,23 @@ def test_a_switched_off_feature_in_use_names_itself():
   assert int(jc.resolve(grown[status.FRICTION_OFF], cfg).status) == 0
   assert int(jc.resolve(grown[status.SENSORS_OFF], cfg).status) == (
       status.SENSORS_OFF | status.SWITCHED_OFF)
+
+
+def test_a_skin_wider_than_the_bodies_allow_is_flagged_per_world():
+  # Issue 44 item 4: Config(skin=0.5) was silently accepted: a falling unit box rested at
+  # y 0.80 instead of 0.50, a head-on pair stopped 0.4 apart, and no bit said so. The
+  # skin may be at most the thinnest active body's half-extent / SKIN_HALF_RATIO (8).
+  # A batch: a unit box over a floor (limit 0.0625) and the same scene twice the size
+  # (limit 0.125), stepped with skin 0.1: only the first world is flagged.
+  small = jc.World.create([[0.0, 0.5], [0.0, -0.5]], [[0.5, 0.5], [5.0, 0.5]], [1.0, np.inf])
+  large = small.replace(pos=2 * small.pos, half=2 * small.half)
+  batch = jc.stack([small, large])
+  code = np.asarray(jc.step(batch, jc.Config(skin=0.1)).status)
+  np.testing.assert_array_equal(code, [status.SKIN_TOO_WIDE, 0])
+  assert code[0] == status.SKIN_TOO_WIDE and "Config.skin" in status.SKIN_TOO_WIDE.message
+  # At the limit (0.0625 for the unit box) nothing is flagged; the default skin is fine.
+  np.testing.assert_array_equal(jc.step(batch, jc.Config(skin=0.0625)).status, [0, 0])
+  # Config.for_world, where the sizes are on the host, refuses such a skin by name.
+  with pytest.raises(ValueError, match=r"Config.skin: 0.5 is wider .* 0.5 / 8 = 0.0625"):
+    jc.Config.for_world(small, skin=0.5)
+  assert jc.Config.for_world(small, skin=0.0625).skin == 0.0625

@@ -41,7 +41,9 @@ class Config:
       `DENSE_MAX_BODIES` bodies, else dense).
     substeps: sub-steps of `dt / substeps` per step.
     skin: bodies closer than this along the contact axis are chain links: a push
-      travels through a row of touching boxes in the same pass.
+      travels through a row of touching boxes in the same pass. A rounding tolerance:
+      at most the thinnest active body's half-extent / `status.SKIN_HALF_RATIO` (8),
+      else every step sets `status.SKIN_TOO_WIDE` (bodies rest up to the skin apart).
     immovable: whether the scene may hold immovable bodies (inverse mass 0). With
       `False` the "leans on something immovable" flag is not traced at all; only
       set it when no active body has infinite mass.

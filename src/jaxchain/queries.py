@@ -304,7 +304,10 @@ def raycast(world: World, origin, direction, max_distance=float("inf"), *, mask=
   `(1e-30, -1e-30)` too). Gradient-safe: the distance and point of a hit are
   differentiable in `origin`, `direction` and the bodies' positions and sizes, also
   for axis-aligned rays (a direction component of 0 takes no division; the
-  normalisation is guarded: `core.layout.safe_divide`'s double `where`). O(n log n): the
+  normalisation is guarded by a double `where`), and finite for tiny directions: the
+  derivatives of the normalisation and of `1 / u` are written without `|d| ** -2` and
+  `u ** -2` (which overflow at 1e-30 in float32), so `(1e-30, -1e-30)` has the
+  gradient of `(1, -1)` times 1e30, and `(1, -1e-30)` that of `(1, 0)`. O(n log n): the
   seams sort the bodies along the ray.
 
   Args:
@@ -368,14 +371,10 @@ def _raycast(world: World, origin: jax.Array, direction: jax.Array, max_distance
     zero = jnp.zeros(2, origin.dtype)
     return RayHit(hit=jnp.zeros((), bool), body=jnp.full((), -1, jnp.int32),
                   distance=max_distance, point=origin, normal=zero)
-  # Normalised by its largest component first, so that a tiny direction (1e-30, -1e-30)
-  # does not square to zero; guarded: no NaN gradient at a zero direction.
-  scale = jnp.max(jnp.abs(direction))
-  ok = scale > 0
-  d = direction / jnp.where(ok, scale, 1.0)
-  u = jnp.where(ok, d / jnp.sqrt(jnp.where(ok, jnp.sum(d * d), 1.0)), 0.0)
+  u = _unit(direction)
+  ok = jnp.any(u != 0)
   moving = u != 0  # [2]
-  inv = jnp.where(moving, 1.0 / jnp.where(moving, u, 1.0), 0.0)
+  inv = _reciprocal(u)
   low, high = world.pos - world.half, world.pos + world.half  # [n, 2]
   t1, t2 = (low - origin[None]) * inv[None], (high - origin[None]) * inv[None]
   enter_k = jnp.where(moving[None], jnp.minimum(t1, t2), -jnp.inf)
@@ -403,6 +402,52 @@ def _raycast(world: World, origin: jax.Array, direction: jax.Array, max_distance
   normal = jnp.where(onehot, -jnp.sign(u), 0.0)
   return RayHit(hit=hit, body=jnp.where(hit, best, -1), distance=distance,
                 point=jnp.where(hit, point, origin), normal=jnp.where(hit, normal, 0.0))
+
+
+def _normalise(x: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+  """`(u, scale, length)`: `x` (`[2]`) over its largest component (`scale`, so that a
+  tiny direction such as (1e-30, -1e-30) does not square to zero), then over that
+  vector's length (in `[1, sqrt 2]`); zeros for a zero `x`."""
+  scale = jnp.max(jnp.abs(x))
+  ok = scale > 0
+  d = x / jnp.where(ok, scale, 1.0)
+  length = jnp.sqrt(jnp.where(ok, jnp.sum(d * d), 1.0))
+  return jnp.where(ok, d / length, 0.0), jnp.where(ok, scale, 1.0), length
+
+
+@jax.custom_jvp
+def _unit(x: jax.Array) -> jax.Array:
+  """The unit vector along `x` (`[2]`), zero for a zero `x` (`_normalise`).
+
+  Its derivative, `(dx - u (u . dx)) / |x|`, is written as one division by `scale` (and
+  by `length`): JAX's own rules go through `scale ** -2`, which overflows for a tiny
+  direction (1e-30 in float32: 1e60) and turned every gradient of a ray cast along
+  such a direction into NaN (issue 44 item 9)."""
+  return _normalise(x)[0]
+
+
+@_unit.defjvp
+def _unit_jvp(primals, tangents):
+  (x,), (dx,) = primals, tangents
+  u, scale, length = _normalise(x)
+  t = dx / scale
+  return u, (t - u * jnp.sum(u * t)) / length
+
+
+@jax.custom_jvp
+def _reciprocal(u: jax.Array) -> jax.Array:
+  """`1 / u` where `u != 0`, else 0. Its derivative `-(du / u) / u` is written so that a
+  zero cotangent stays zero for a tiny `u` (JAX's rule multiplies by `u ** -2`, inf for
+  u = 1e-30 in float32, and `0 * inf` is NaN: the axis a ray nearly runs along)."""
+  moving = u != 0
+  return jnp.where(moving, 1.0 / jnp.where(moving, u, 1.0), 0.0)
+
+
+@_reciprocal.defjvp
+def _reciprocal_jvp(primals, tangents):
+  (u,), (du,) = primals, tangents
+  inv = _reciprocal(u)
+  return inv, -(du * inv) * inv
 
 
 def _covered(t: jax.Array, enter: jax.Array, leave: jax.Array, member: jax.Array

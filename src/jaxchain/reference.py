@@ -360,7 +360,11 @@ def step(pos, vel, half, mass, *, friction=0.0, gravity=(0.0, -9.81), dt: float 
      skin or overlapping): the perfectly inelastic projection, `min sum m |v' - v|^2`
      subject to no linked pair approaching, solved exactly by an active-set method. A link whose two units both lean on
      immovable bodies (a crush) is left out, and a movable body with such a link takes,
-     along its axis, the mean velocity of the bodies it is linked to along that axis;
+     along its axis, the mean velocity of the bodies it is linked to along that axis. A
+     crush needs a push into both sides: the units lean on immovable bodies both at the
+     resolved positions and at `x_pred` (a box touching a floor and a ceiling with no
+     penetration while gravity presses it onto the floor, a player in a tunnel of its
+     height, rests on the floor, friction included);
   4. friction: one Jacobi step on units with mass splitting, as
      `jaxchain.velocity.friction` documents: per link `clip(sliding / (k_i / F_i +
      k_j / F_j), +-sqrt(mu_i mu_j) * normal impulse)`, with k the body's number of
@@ -406,9 +410,11 @@ def step(pos, vel, half, mass, *, friction=0.0, gravity=(0.0, -9.81), dt: float 
     vel = vel + accel * sub_dt
     vel[movable] += np.asarray(gravity, np.float64) * sub_dt
     start = pos
-    pos = resolve(start + vel * sub_dt, half, mass, skin=skin, start=start, one_way=one_way,
-                  vel=vel)
+    predicted = start + vel * sub_dt
+    pos = resolve(predicted, half, mass, skin=skin, start=start, one_way=one_way, vel=vel)
     scene = _Scene(pos, half, mass, skin, start, one_way, vel)
+    # Where the motion took the bodies: a crush needs a push into both sides there.
+    pushed = _Scene(predicted, half, mass, skin, start, one_way, vel)
     links = []  # (i, j, axis, sign): j lies in direction sign along axis from i.
     for i in range(n):
       for j in range(i + 1, n):
@@ -417,7 +423,8 @@ def step(pos, vel, half, mass, *, friction=0.0, gravity=(0.0, -9.81), dt: float 
           links.append((i, j, axis, sign))
     crushed, free = [], []
     for i, j, axis, sign in links:
-      jammed = (scene.unit(i, axis, -sign, set())[1] and scene.unit(j, axis, sign, set())[1])
+      jammed = all(sc.unit(i, axis, -sign, set())[1] and sc.unit(j, axis, sign, set())[1]
+                   for sc in (scene, pushed))
       (crushed if jammed else free).append((i, j, axis, sign))
     before = vel.copy()
     normal = _inelastic(vel, inv_mass, free, tol, max_iterations)

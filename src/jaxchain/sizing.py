@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxchain import broadphase
+from jaxchain import broadphase, status
 from jaxchain.broadphase import allocate
 from jaxchain.core import contacts as core_contacts
 from jaxchain.core import pairs as core_pairs
@@ -115,6 +115,8 @@ def for_world(cls, world, /, **overrides):
     if need.substeps > MAX_SUBSTEPS:
       raise ValueError(need.message(base.dt))
     derived["substeps"] = need.substeps
+  if "skin" in overrides:  # The default skin on tinier bodies: the step's SKIN_TOO_WIDE.
+    _check_skin(world, base)
   kind = overrides.get("broadphase", "auto")  # Not `broadphase`: that is the module.
   if kind in ("auto", "grid") and "grid" not in overrides:
     if kind == "grid" or n > DENSE_MAX_BODIES:
@@ -145,6 +147,21 @@ def for_world(cls, world, /, **overrides):
     derived["links"] = links if links < row else None
   derived.update({k: v for k, v in overrides.items() if k in derived_keys})
   return base.replace(**derived)
+
+
+def _check_skin(world, config) -> None:
+  """Raises when `config.skin` is wider than the thinnest active body (not a sensor)
+  allows: its half-extent over `status.SKIN_HALF_RATIO`, the limit the step reports as
+  `status.SKIN_TOO_WIDE`."""
+  solid = np.asarray(world.active) & ~np.asarray(world.sensor)
+  half = np.asarray(world.half, np.float64)
+  thinnest = float(np.min(np.where(solid[..., None], half, np.inf), initial=np.inf))
+  if config.skin > thinnest / status.SKIN_HALF_RATIO:
+    raise ValueError(
+        f"Config.skin: {config.skin:g} is wider than the thinnest body allows (half-extent "
+        f"{thinnest:g} / {status.SKIN_HALF_RATIO} = {thinnest / status.SKIN_HALF_RATIO:g}): "
+        f"gaps within the skin count as contact, so bodies would rest and stop up to "
+        f"{config.skin:g} apart; pass a smaller skin (the default is 1e-4)")
 
 
 def stack_bound(world, gravity) -> int:

@@ -43,6 +43,7 @@ class Status(enum.IntFlag):
   SENSORS_OFF = 1 << 17
   LAYERS_OFF = 1 << 18
   OVERLAP_LEFT = 1 << 19
+  SKIN_TOO_WIDE = 1 << 20
 
   @property
   def message(self) -> str:
@@ -71,6 +72,13 @@ ONE_WAY_OFF = Status.ONE_WAY_OFF
 SENSORS_OFF = Status.SENSORS_OFF
 LAYERS_OFF = Status.LAYERS_OFF
 OVERLAP_LEFT = Status.OVERLAP_LEFT
+SKIN_TOO_WIDE = Status.SKIN_TOO_WIDE
+
+# `Config.skin` may be at most the thinnest active body's half-extent over this
+# (`SKIN_TOO_WIDE`): gaps within the skin are contacts, so bodies rest and stop up to the
+# skin apart, and the contact rules read faces within the skin as level. A power of two:
+# `half / SKIN_HALF_RATIO` is exact, so the limit has no rounding of its own.
+SKIN_HALF_RATIO = 8
 
 # Every bit's message, in bit order (the order `check` reports them in).
 MESSAGES = {
@@ -134,6 +142,10 @@ MESSAGES = {
                   "skin after the step's passes and Config.closing closing passes (not "
                   "crushed, not one-way); the next step lifts it out by position, which can "
                   "add potential energy (raise closing, iterations or substeps)",
+    SKIN_TOO_WIDE: "Config.skin is wider than 1/8 of the thinnest active body's half-extent "
+                   "(status.SKIN_HALF_RATIO): gaps within the skin count as contact, so "
+                   "bodies rest and stop up to the skin apart (lower skin; the default 1e-4 "
+                   "suits bodies of half-extent 8e-4 and up)",
 }
 
 

@@ -122,7 +122,12 @@ def _policy_accel(policy, world: World, t: jax.Array) -> jax.Array:
 # -------------------------------------------------------- one world, and the vmap route
 
 def _add_axis(tree, size: int = 1):
-  return jax.tree.map(lambda x: jnp.broadcast_to(x[None], (size,) + x.shape), tree)
+  """`tree` with a leading batch axis of `size` copies, concatenated rather than
+  broadcast: XLA sees through a broadcast, simplifies the program around it (other
+  fusions, other shapes, and so other fused multiply-adds), and one world then rounded
+  differently from the same world in a batch (a free fall: 1 ulp at step 12, at XLA's
+  default flags; issue 44 item 2). Concatenated, the program is the batch's."""
+  return jax.tree.map(lambda x: jnp.concatenate([x[None]] * size), tree)
 
 
 # One small world runs as a batch of two copies of it (the first is returned). XLA:CPU

@@ -33,7 +33,7 @@ from jax import lax
 
 from jaxchain.core.contacts import Links
 from jaxchain.core.layout import (any_world, along, choose, fold, opposite, positive,
-                                  push_max, safe_divide, world_sum)
+                                  push_max, safe_divide, vary, world_sum)
 
 # Jacobi refinement steps on the contact impulses after the chain's estimate.
 REFINE = 4
@@ -56,10 +56,11 @@ def repeat(hop, init, times: int, converge: bool = False, check: bool = False):
   changes = lambda x, y: jax.tree_util.tree_map(jnp.not_equal, x, y)
   if not converge:
     if not check:
-      return lax.fori_loop(0, times, lambda _, x: hop(x), init)
+      return lax.fori_loop(0, times, lambda _, x: hop(x), vary(init))
     # The check hop runs as the loop's last iteration (one copy of the hop's code):
     # the carry holds the last two values, `hop^times` and `hop^(times + 1)`.
-    before, after = lax.fori_loop(0, times + 1, lambda _, c: (c[1], hop(c[1])), (init, init))
+    before, after = lax.fori_loop(0, times + 1, lambda _, c: (c[1], hop(c[1])),
+                                  vary((init, init)))
     return before, changes(before, after)
 
   # One test, after the second hop: a chain that carries nothing is still after one hop
@@ -76,7 +77,7 @@ def repeat(hop, init, times: int, converge: bool = False, check: bool = False):
   last = times + 1 if check else times
   k, before, after, changed = lax.while_loop(
       lambda s: s[3] & (s[0] < last), step,
-      (jnp.zeros((), jnp.int32), init, init, jnp.ones((), bool)))
+      vary((jnp.zeros((), jnp.int32), init, init, jnp.ones((), bool))))
   if not check:
     return after
   past = k > times  # Ran the check hop: `before` holds `times` hops, `after` one more.
@@ -265,7 +266,7 @@ def displacement(f: Links, mass: jax.Array, immovable: jax.Array, *, depth: int,
     closing = v_dir[None] - f.front(v_dir)
     return jnp.where(free, positive(lam + safe_divide(closing, stiffness), lead), 0.0)
 
-  lam = lax.fori_loop(0, REFINE, refine, impulse)
+  lam = lax.fori_loop(0, REFINE, refine, vary(impulse))
   change = velocity_change(lam)
   scale = energy_scale(vel, change, lam, f, mass, immovable, m_dir)
   return Pass(net, exhausted, crushed, scale[None, None] * change,

@@ -92,10 +92,22 @@ def finite(bodies: Bodies, *arrays: jax.Array) -> jax.Array:
 def switched_off(bodies: Bodies, config, physics: bool = True) -> jax.Array:
   """`[B]`: `SWITCHED_OFF` and the bit naming each feature a world uses that the config
   leaves out of the step (`resolve`, with `physics=False`, uses neither friction nor
-  gravity). Its equations run under the name `switched_off` (tests count the step's work
-  apart from this O(n) check)."""
+  gravity), and `SKIN_TOO_WIDE` where `config.skin` is wider than the world's bodies
+  allow (`skin_too_wide`). Its equations run under the name `switched_off` (tests count
+  the step's work apart from these O(n) checks, once per step)."""
   with jax.named_scope("switched_off"):
-    return _switched_off(bodies, config, physics)
+    return _switched_off(bodies, config, physics) | skin_too_wide(bodies, config)
+
+
+def skin_too_wide(bodies: Bodies, config) -> jax.Array:
+  """`[B]` `SKIN_TOO_WIDE`: `config.skin` exceeds an active body's half-extent (either
+  axis) over `status.SKIN_HALF_RATIO`. Sensors take no contacts (with `config.sensors`):
+  they do not count."""
+  if config.skin == 0:
+    return jnp.zeros(bodies.shape[-1:], jnp.int32)
+  solid = bodies.active & ~bodies.sensor if config.sensors else bodies.active
+  thin = bodies.half < config.skin * status.SKIN_HALF_RATIO
+  return bit(any_world(solid[None] & thin), status.SKIN_TOO_WIDE)
 
 
 def _switched_off(bodies: Bodies, config, physics: bool) -> jax.Array:

@@ -17,7 +17,8 @@ from jax import lax
 
 from jaxchain.core import chain
 from jaxchain.core.contacts import Links
-from jaxchain.core.layout import any_world, batch_any, choose, fold, opposite, safe_divide, safe_sqrt
+from jaxchain.core.layout import (any_world, batch_any, choose, fold, opposite, safe_divide,
+                                  safe_sqrt, vary)
 
 # Linked bodies whose tangential velocities differ by at most this (units per second)
 # move together for friction: they are one unit, and friction on the bottom one stops
@@ -141,7 +142,7 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
     return lax.cond(batch_any(again), work, lambda: carry)
 
   carry = (sticking, jnp.zeros_like(budget), impulse, total, count, shared)
-  carry = lax.fori_loop(1, ROUNDS, slip_round, carry)
+  carry = lax.fori_loop(1, ROUNDS, slip_round, vary(carry))
   _, _, impulse, total, _, _ = carry
   # Units along x (e = 0, 1) slide along y, units along y along x.
   change = jnp.stack([total[2] + total[3], total[0] + total[1]])

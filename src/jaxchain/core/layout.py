@@ -14,6 +14,8 @@ neighbouring worlds' values side by side. A single world is `B = 1`.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
 import functools
 import math
@@ -375,3 +377,53 @@ def batch_any(x: jax.Array) -> jax.Array:
 def world_sum(x: jax.Array, y: jax.Array) -> jax.Array:
   """Per-world sum of per-body terms along x and y (`[n, B]` each) -> `[B]`."""
   return jnp.sum(lax.optimization_barrier(jnp.stack([x, y], axis=1)), axis=(0, 1))
+
+
+# --- jax.shard_map: loop carries that start as constants ------------------------------
+
+# Inside `jax.shard_map` (its `check_vma`, on by default) every value has a type saying
+# over which manual mesh axes it varies, and a loop's carry must start with the type it
+# ends with. The core's loops start from constants (zeros, an empty neighbour table)
+# and end with values computed from the worlds, which vary over the axes the batch is
+# split over: `vary` casts the constants (`lax.pcast(..., to="varying")`) to the axes
+# the step's inputs vary over (`manual_axes`, set by the core's entry points). Outside
+# `shard_map` there are none, and both are no-ops at trace time.
+_MANUAL_AXES: contextvars.ContextVar[frozenset] = contextvars.ContextVar(
+    "jaxchain_manual_axes", default=frozenset())
+
+
+def _varying(tree) -> frozenset:
+  """The manual mesh axes the arrays of `tree` vary over (their types say)."""
+  axes = set()
+  for leaf in jax.tree.leaves(tree):
+    if not isinstance(leaf, jax.Array):
+      continue
+    aval = jax.typeof(leaf)
+    manual = getattr(aval, "manual_axis_type", None)
+    found = getattr(manual, "varying", None) if manual is not None else getattr(aval, "vma", None)
+    axes.update(found or ())
+  return frozenset(axes)
+
+
+@contextlib.contextmanager
+def manual_axes(*trees):
+  """Within it, `vary` casts to the manual axes the arrays of `trees` vary over."""
+  token = _MANUAL_AXES.set(_MANUAL_AXES.get() | _varying(trees))
+  try:
+    yield
+  finally:
+    _MANUAL_AXES.reset(token)
+
+
+def vary(tree):
+  """`tree` with every array cast to vary over the axes of `manual_axes` (a loop's
+  initial carry built from constants, under `jax.shard_map`); unchanged outside it."""
+  axes = _MANUAL_AXES.get()
+  if not axes:
+    return tree
+
+  def cast(x):
+    x = jnp.asarray(x)
+    missing = tuple(sorted(axes - _varying(x)))
+    return lax.pcast(x, missing, to="varying") if missing else x
+  return jax.tree.map(cast, tree)

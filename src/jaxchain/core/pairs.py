@@ -240,9 +240,29 @@ def build(pos: jax.Array, bodies: Bodies, config, start: jax.Array | None = None
     if use_grid:
       code = jnp.where(any_world(sweep > config.margin), status.NEIGHBOR_MARGIN, 0)
   source, found = coarse(centre, bodies, config, skin=grid_skin)
-  cand, overflow = neighbors(centre, half, bodies.movable, source, width=config.neighbors,
-                             reach=reach)
+  compact = lambda src: neighbors(centre, half, bodies.movable, src, width=config.neighbors,
+                                  reach=reach)
+  if not use_grid:
+    cand, overflow = compact(source)
+  else:
+    # A full cell (rare: the grid is sized with headroom) is built again with `RETRY`
+    # times the cell capacity, in a `lax.cond` that only a batch with a full cell takes:
+    # the table is then exact, and the same as a rollout's table kept from before the
+    # cell filled (issue 44 item 6: `jc.step` set CELL_OVERFLOW and lost pairs where
+    # `jc.rollout` kept an exact table and set nothing). Beyond that, CELL_OVERFLOW.
+    wide = dataclasses.replace(spec, cell_capacity=RETRY * spec.cell_capacity)
+
+    def retry():
+      src, bits = grid(centre, bodies.half, bodies.active, bodies.movable, wide, grid_skin)
+      return compact(src) + (bits,)
+
+    full = (found & status.CELL_OVERFLOW) != 0
+    cand, overflow, found = lax.cond(batch_any(full), retry,
+                                     lambda: compact(source) + (found,))
   return Neighbors(cand=cand, ref=pos, code=(overflow | found | code).astype(jnp.int32))
+
+
+RETRY = 2  # The cell capacity of a neighbour table's second build when a cell is full.
 
 
 def empty(bodies: Bodies, config) -> Neighbors | None:

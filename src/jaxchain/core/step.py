@@ -20,7 +20,8 @@ from jax import lax
 
 from jaxchain import status
 from jaxchain.core import chain, contacts, flags, friction, pairs
-from jaxchain.core.layout import NUM_DIRECTIONS, Bodies, State, any_world, batch_any
+from jaxchain.core.layout import (NUM_DIRECTIONS, Bodies, State, any_world, batch_any,
+                                  manual_axes, vary)
 
 
 CLOSING_GATE = "closing_gate"
@@ -133,8 +134,8 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
             | flags.bit(scaled, status.IMPULSES_SCALED))
     return new_p, v, code, cut | exhausted, crushed | hit, touching | contacts.touching(f)
 
-  init = (pos, vel, jnp.zeros((B,), jnp.int32), jnp.zeros((B,), bool), jnp.zeros((n, B), bool),
-          jnp.zeros((NUM_DIRECTIONS, n, B), bool))
+  init = vary((pos, vel, jnp.zeros((B,), jnp.int32), jnp.zeros((B,), bool),
+               jnp.zeros((n, B), bool), jnp.zeros((NUM_DIRECTIONS, n, B), bool)))
   if vel is None:  # `resolve`: positions alone, no closing stage.
     state = one_pass(0, init) if config.iterations == 1 else lax.fori_loop(
         0, config.iterations, one_pass, init)
@@ -166,7 +167,7 @@ def passes(bodies: Bodies, pos: jax.Array, config, *, start: jax.Array | None = 
       state = jax.tree.map(lambda x, y: jnp.where(per_world(take, x), x, y), new, state)
       return state, jnp.where(take, left, need), src
 
-    carry = (init, jnp.zeros((B,), bool), fixed)
+    carry = vary((init, jnp.zeros((B,), bool), fixed))
     if B == 1:  # XLA:CPU keeps a loop's body whole at one world; unrolled, it simplifies.
       for k in range(config.iterations + config.closing):
         carry = body(k, carry)
@@ -232,7 +233,8 @@ def substep(state: State, bodies: Bodies, config, sub_dt: float, accel: jax.Arra
 def step(state: State, bodies: Bodies, config, accel: jax.Array | None = None) -> State:
   """One step: `config.substeps` substeps of `dt / substeps`. `accel`: optional
   `[2, n, B]` accelerations for this step (every active body)."""
-  return advance(state, None, bodies, config, accel)[0]
+  with manual_axes(state, bodies, accel):
+    return advance(state, None, bodies, config, accel)[0]
 
 
 def advance(state: State, table: pairs.Neighbors | None, bodies: Bodies, config,
@@ -251,12 +253,17 @@ def advance(state: State, table: pairs.Neighbors | None, bodies: Bodies, config,
     table = pairs.empty(bodies, config)
   return lax.fori_loop(0, config.substeps,
                        lambda _, c: substep(c[0], bodies, config, sub_dt, accel, c[1]),
-                       (state, table))
+                       vary((state, table)))
 
 
 def resolve(state: State, bodies: Bodies, config) -> State:
   """Collision resolution only: positions, `crushed`, `touching`, `sensed`, status;
   velocities untouched."""
+  with manual_axes(state, bodies):
+    return _resolve(state, bodies, config)
+
+
+def _resolve(state: State, bodies: Bodies, config) -> State:
   pos, _, code, crushed, touching = passes(bodies, state.pos, config)
   sensed, found = sensors(bodies, pos, config)
   code = (code | found | flags.finite(bodies, state.pos, pos) | crushed_bit(crushed)
@@ -289,6 +296,7 @@ def rollout(state: State, bodies: Bodies, config, n_steps: int,
     return (s, table), out
 
   steps = jnp.arange(n_steps, dtype=jnp.int32)
-  (state, _), traj = lax.scan(body, (state, pairs.empty(bodies, config)), (steps, controls),
-                              length=n_steps)
+  with manual_axes(state, bodies, controls):
+    (state, _), traj = lax.scan(body, vary((state, pairs.empty(bodies, config))),
+                                (steps, controls), length=n_steps)
   return state, traj
