@@ -109,7 +109,7 @@ def main() -> None:
   args = parser.parse_args()
   sizes = [1024, 20, 200, 1024]  # envs, scan steps, one-world calls, room batch
   if args.smoke:
-    args.against, args.rounds, sizes = [], 1, [4, 2, 5, 4]
+    args.against, args.rounds, sizes = [], 1, [4, 2, 5, 1]  # B = 1 twice: one room program.
   run = Run.start(src=ROOT / "src")
   trees = {"HEAD": ROOT / "src"}
   with tempfile.TemporaryDirectory() as tmp:
