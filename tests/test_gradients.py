@@ -273,3 +273,35 @@ def test_jvp_matches_finite_differences_on_smooth_scenes(data):
     tol = TOL["jvp_smooth"]
     for name, got in (("jvp", fwd @ direction), ("grad", grad @ direction)):
       np.testing.assert_allclose(got, wanted[0], rtol=tol["rtol"], atol=tol["atol"], err_msg=name)
+
+
+# --- Parameters where researchers look (issue 43 item 2) ----------------------------------
+
+def test_mass_is_first_class_and_differentiable_through_a_rollout():
+  # Box 0 (mass 1, speed 2) hits box 1 (mass m) and both move on at 2 / (1 + m); a wall
+  # (mass inf) stands beyond reach. The world is built by `World.create` from the traced
+  # masses (`with_mass` inside): d x1 / d m equals central differences, and the wall's
+  # entry of the gradient is 0, not NaN.
+  cfg = jc.Config(depth=2, gravity=False, friction=False, one_way=False, layers=False,
+                  sensors=False)
+  pos, half, vel = [[0.0, 0.0], [1.5, 0.0], [9.0, 0.0]], [0.5, 0.5], [[2.0, 0.0], [0.0, 0.0],
+                                                                    [0.0, 0.0]]
+
+  def x1(mass):
+    world = jc.World.create(pos, half, mass, vel=vel, gravity=(0.0, 0.0))
+    return jc.rollout(world, cfg, 30)[0].pos[1, 0]
+
+  m = jnp.array([1.0, 2.0, jnp.inf])
+  grad = np.asarray(jax.jit(jax.grad(x1))(m))
+  h = 1e-2
+  xs = np.asarray(jax.jit(jax.vmap(x1))(jnp.stack([m.at[1].add(h), m.at[1].add(-h)])), np.float64)
+  assert np.all(np.isfinite(grad)) and grad[2] == 0.0
+  np.testing.assert_allclose(grad[1], (xs[0] - xs[1]) / (2 * h), rtol=1e-2)
+  assert grad[1] < 0  # A heavier box is pushed less far.
+  w = jc.World.create(pos, half, [1.0, 2.0, np.inf])
+  np.testing.assert_array_equal(w.with_mass(m).inv_mass, w.inv_mass)
+  assert w.mass.tolist() == [1.0, 2.0, np.inf]
+  g = jax.grad(lambda inv: jnp.sum(w.replace(inv_mass=inv).mass[:2]))(w.inv_mass)
+  assert g.tolist() == [-1.0, -4.0, 0.0]  # d (1 / inv) / d inv, 0 at the wall.
+  with pytest.raises(ValueError, match="masses must be > 0"):
+    w.with_mass([1.0, 0.0, 1.0])
