@@ -17,7 +17,8 @@ from jax import lax
 
 from jaxchain.core import chain
 from jaxchain.core.contacts import Links
-from jaxchain.core.layout import any_world, batch_any, choose, fold, opposite, safe_divide, safe_sqrt
+from jaxchain.core.layout import (any_world, batch_any, choose, fold, opposite, pair_coefficient,
+                                  safe_divide)
 
 # Linked bodies whose tangential velocities differ by at most this (units per second)
 # move together for friction: they are one unit, and friction on the bottom one stops
@@ -42,7 +43,8 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   far side (`shared[e, i]`: the boxes stacked on a box that slides on a floor), and
   what moves with j is j's unit `shared[d, j]`, both made of the links that stick. The
   impulse stops the two units' relative sliding, clipped to the link's budget
-  `mu_pair * normal` (`mu_pair = sqrt(mu_i mu_j)`, as Box2D combines them); each unit
+  `mu_pair * normal` (`mu_pair = 2 mu_i mu_j / (mu_i + mu_j)`, the harmonic mean:
+  `layout.pair_coefficient`, with a finite derivative at 0); each unit
   takes it rigidly, its bodies reached in `depth` hops.
 
   Friction acts per link: a unit moves as one only through links whose own Coulomb
@@ -77,7 +79,8 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   dtype = vel.dtype
   tangent = jnp.stack([vel[1], vel[1], vel[0], vel[0]])  # [4, n, B]
   sliding = jnp.where(f.mask, tangent[None] - f.front(tangent), 0.0)
-  mu_pair = safe_sqrt(coefficient[None, None] * f.bodies(coefficient))
+  mu_pair = pair_coefficient(jnp.broadcast_to(coefficient[None, None], f.mask.shape),
+                             f.bodies(coefficient))
   budget = jnp.where(f.mask, mu_pair * normal, 0.0)
   rubbing = (budget > 0) & (jnp.abs(sliding) > SLIP)
   movable = fold("any", shared > 0)[None]
@@ -97,8 +100,9 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
     of its unit along each direction, `count` its sticking pushers along it."""
     unit_i = opposite(shared)  # At (d, i): i's unit along e.
 
+    free = f.mask & (budget == 0) & (jnp.abs(sliding) > SLIP) & ~sticking
     impulse = choose(_impulses, _impulses_at_rest, f, sliding, unit_i, shared, budget, slip,
-                     rubbing, k, resting, k_d)
+                     rubbing, k, resting, k_d, free)
     source = opposite(safe_divide(-jnp.sum(impulse, axis=0), unit_i))  # At (e, i).
     carries = opposite(sticking, 1)  # Rows of the reversed table, sticking.
     count = jnp.sum(carries, axis=0).astype(dtype)
@@ -160,19 +164,25 @@ def _stops(f: Links, sliding, unit_i, shared, budget, k):
   return jnp.clip(safe_divide(sliding, inv_i[None] + inv_j), -budget, budget)
 
 
-def _impulses(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d):
+def _impulses(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d, free):
   """Each link's friction impulse: the stopping one where it rubs, else `slip`."""
-  del resting, k_d
+  del resting, k_d, free
   stop = _stops(f, sliding, unit_i, shared, budget, k)
   return jnp.where(rubbing & (slip == 0), stop, slip)
 
 
-def _impulses_at_rest(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d):
+def _impulses_at_rest(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d, free):
   """`_impulses`, with the resting links (a budget, sliding within `SLIP`) stopped too,
-  each counting every link with a budget for its mass splitting (`k_d`)."""
+  each counting every link with a budget for its mass splitting (`k_d`); and the sliding
+  links without a budget (`free`: a pair coefficient of 0, outside the units) carrying
+  it the way they slide, `sign(sliding) * budget` (0): the piece a coefficient raised
+  from 0 steps into, where the link rubs at its budget (`jnp.clip` would give half of
+  that derivative at a budget of 0, or none)."""
   rest = _stops(f, sliding, unit_i, shared, budget, k_d)
-  return jnp.where(resting & (slip == 0), rest,
-                   _impulses(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d))
+  out = jnp.where(resting & (slip == 0), rest,
+                  _impulses(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d,
+                            free))
+  return jnp.where(free & (slip == 0), jnp.sign(sliding) * budget, out)
 
 
 def holding(f: Links, total: jax.Array, shared: jax.Array, count: jax.Array) -> jax.Array:

@@ -217,6 +217,23 @@ def safe_sqrt(x: jax.Array) -> jax.Array:
   return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1.0)), 0.0)
 
 
+def pair_coefficient(a: jax.Array, b: jax.Array) -> jax.Array:
+  """The friction coefficient of a pair: the harmonic mean `2ab / (a + b)` of the
+  bodies' coefficients (`>= 0`), 0 if either is 0, `a` when both are `a` (exactly:
+  written `lo * (2 hi / (lo + hi))`, symmetric in `a` and `b`).
+
+  Its derivative is finite everywhere: `d / da = 2 b^2 / (a + b)^2`, so 2 at `a = 0`
+  (the geometric mean `sqrt(ab)` it replaces has derivative 0 there and `0.5 sqrt(b/a)`,
+  unbounded, just above), and at `a = b = 0` the limit along `a = b`, 1/2 each (a
+  coefficient shared by every body, fitted from a guess of 0, moves). The derivative of
+  `mu(x, x)` in `x` is 1 everywhere.
+  """
+  lo, hi = jnp.minimum(a, b), jnp.maximum(a, b)
+  s = lo + hi
+  ok = s > 0
+  return jnp.where(ok, lo * (2.0 * hi / jnp.where(ok, s, 1.0)), 0.5 * s)
+
+
 # --- Derivatives at ties: one piece, by a rule (docs/physics.md, "Gradients at ties") ---
 # The resolver is piecewise smooth. At a tie (a `max` whose arguments are equal, a
 # `max(x, 0)` at `x = 0`) JAX's own rules pass half the tangent to each side: a mixture of
