@@ -67,7 +67,8 @@ class Config:
       its second hop when that hop changed nothing (in the whole batch), else runs its
       `depth` hops; the same answer as `depth` hops, bit for bit. Faster where
       nothing is carried (free fall), as fast on a settled room; not
-      reverse-differentiable (`jax.grad` raises), so leave it off for gradients.
+      reverse-differentiable: `jax.grad` through `rollout`, `step` or `resolve` raises
+      a `ValueError` naming `converge=False`, so leave it off for gradients.
     neighbors: width of the neighbour table, or None to read the coarse candidates
       (dense pairs or grid rows, by `broadphase`) in every pass. When set, the
       coarse table is filtered into the partners of each movable body within
