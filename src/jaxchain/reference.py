@@ -476,10 +476,9 @@ def _crush(vel, movable, links, crushed, start_vel):
 
 
 def pair_coefficient(a: float, b: float) -> float:
-  """A pair's friction coefficient: the harmonic mean `2ab / (a + b)` of the bodies'
-  (0 if either is 0), as `jaxchain.core.layout.pair_coefficient` computes it."""
-  lo, hi = min(a, b), max(a, b)
-  return lo * (2.0 * hi / (lo + hi)) if lo + hi > 0 else 0.0
+  """A pair's friction coefficient: the smaller of the bodies', `min(a, b)`, as
+  `jaxchain.core.layout.pair_coefficient` computes it."""
+  return min(a, b)
 
 
 def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):

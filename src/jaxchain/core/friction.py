@@ -43,8 +43,8 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   far side (`shared[e, i]`: the boxes stacked on a box that slides on a floor), and
   what moves with j is j's unit `shared[d, j]`, both made of the links that stick. The
   impulse stops the two units' relative sliding, clipped to the link's budget
-  `mu_pair * normal` (`mu_pair = 2 mu_i mu_j / (mu_i + mu_j)`, the harmonic mean:
-  `layout.pair_coefficient`, with a finite derivative at 0); each unit
+  `mu_pair * normal` (`mu_pair = min(mu_i, mu_j)`: `layout.pair_coefficient`, with a
+  finite derivative at 0); each unit
   takes it rigidly, its bodies reached in `depth` hops.
 
   Friction acts per link: a unit moves as one only through links whose own Coulomb
@@ -79,8 +79,7 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   dtype = vel.dtype
   tangent = jnp.stack([vel[1], vel[1], vel[0], vel[0]])  # [4, n, B]
   sliding = jnp.where(f.mask, tangent[None] - f.front(tangent), 0.0)
-  mu_pair = pair_coefficient(jnp.broadcast_to(coefficient[None, None], f.mask.shape),
-                             f.bodies(coefficient))
+  mu_pair = pair_coefficient(coefficient[None, None], f.bodies(coefficient))
   budget = jnp.where(f.mask, mu_pair * normal, 0.0)
   rubbing = (budget > 0) & (jnp.abs(sliding) > SLIP)
   movable = fold("any", shared > 0)[None]
