@@ -307,3 +307,51 @@ def test_mass_is_first_class_and_differentiable_through_a_rollout():
   with pytest.raises(ValueError, match="masses must be > 0"):
     w.with_mass([1.0, 0.0, 1.0])
 
+
+
+# --- Friction at rest: the piece a perturbation of one body enters (issue 43 item 0) ------
+# Two boxes stacked on a floor, at rest, the top box given vx = s: the lower box's final x
+# is s / 120 for |s| in 1e-5..1e-2, a linear piece through 0, but jax.grad gave 1/60 at
+# s = 0 (the resting links' derivative split each body's mass over every link with a
+# budget, so the floor stopped only part of the motion in the derivative).
+
+REST_CFG = jc.Config(depth=2, links=1, broadphase="dense", one_way=False, layers=False,
+                     sensors=False)
+REST_STEPS = 20
+
+
+def _rest_loss(s, world, weights):
+  w = world.replace(vel=world.vel.at[2, 0].set(s))
+  final, _ = jc.rollout(w, REST_CFG, REST_STEPS)
+  return jnp.sum(weights * final.pos[1:, 0])
+
+
+_rest_value_and_grad = jax.jit(jax.value_and_grad(_rest_loss))
+
+
+@settings(max_examples=4)
+@given(half_a=st.floats(0.3, 0.8), half_b=st.floats(0.2, 0.5), offset=st.floats(-0.5, 0.5),
+       mass_a=st.floats(0.5, 3.0), mass_b=st.floats(0.5, 3.0), mu=st.floats(0.2, 0.8),
+       w_b=st.floats(-1.0, 1.0))
+@example(half_a=0.5, half_b=0.5, offset=0.0, mass_a=1.0, mass_b=1.0, mu=0.3, w_b=0.0)
+def test_a_push_on_a_resting_stack_has_the_gradient_of_its_piece(half_a, half_b, offset, mass_a,
+                                                                  mass_b, mu, w_b):
+  # A box (B) on a box (A) on a floor, at rest; B gets vx = s. The loss weighs the two
+  # boxes' final x. Where the loss is linear in s around 0 (one-sided differences agree),
+  # grad at 0 equals the central difference (float64).
+  with jax.enable_x64(True):
+    x_b = offset * min(half_a, half_b)
+    world = jc.World.create([[0.0, -0.5], [0.0, half_a], [x_b, 2 * half_a + half_b]],
+                            [[5.0, 0.5], [half_a, half_a], [half_b, half_b]],
+                            [np.inf, mass_a, mass_b], friction=mu)
+    weights = jnp.array([1.0, w_b])
+    value = lambda s: float(_rest_value_and_grad(jnp.float64(s), world, weights)[0])
+    base, grad = _rest_value_and_grad(jnp.float64(0.0), world, weights)
+    h = 1e-4
+    right, left = (value(h) - float(base)) / h, (float(base) - value(-h)) / h
+    central = (value(h) - value(-h)) / (2 * h)
+  scale = abs(central) + 1e-12
+  if (half_a, half_b, offset, mass_a, mass_b, w_b) == (0.5, 0.5, 0.0, 1.0, 1.0, 0.0):
+    assert abs(right - left) <= 1e-6 * scale and abs(central - 1 / 120) < 1e-9  # The issue's.
+  assume(abs(right - left) <= 1e-6 * scale)
+  np.testing.assert_allclose(float(grad), central, rtol=1e-6)
