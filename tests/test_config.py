@@ -55,6 +55,23 @@ def test_for_world_switches_off_unused_features():
   assert jc.Config.for_world(walled, depth=32).depth == 32  # Overrides win.
 
 
+def test_for_world_keeps_what_a_fit_starts_at_zero():
+  # Issue 43 item 2: a guess of friction 0 or gravity 0 switched the feature off, and its
+  # gradient was silently 0. keep= leaves the named switches on (and nothing else changes).
+  world = jc.World.create([[0.0, 0.5], [0.0, -0.5]], [[0.5, 0.5], [20.0, 0.5]], [1.0, np.inf],
+                          vel=[[2.0, 0.0], [0.0, 0.0]], gravity=(0.0, 0.0))
+  lean = jc.Config.for_world(world)
+  assert not lean.has_friction and not lean.has_gravity
+  kept = jc.Config.for_world(world, keep=("friction", "gravity"))
+  assert kept.has_friction and kept.has_gravity
+  assert kept == jc.Config.for_world(world, friction=True, gravity=True)
+  assert jc.Config.for_world(world, keep="friction") == lean.replace(friction=True)
+  free = scenes.push_chain(2, wall=False).world(gravity=(0.0, 0.0))
+  assert jc.Config.for_world(free, keep=("immovable",)).immovable
+  with pytest.raises(ValueError, match=r"keep= takes names from .*'frictoin'"):
+    jc.Config.for_world(world, keep=("frictoin",))
+
+
 def test_for_world_on_a_padded_batch_looks_at_active_bodies_only():
   small = scenes.push_chain(1, wall=False).world()
   big = scenes.push_chain(5, wall=False).world()

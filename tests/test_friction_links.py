@@ -66,11 +66,13 @@ def test_a_frictionless_box_on_a_sliding_stack_keeps_sliding():
 
 
 def test_a_rough_box_on_a_sliding_stack_stops_with_it():
-  # The top link's budget (sqrt(1 * 1) g) holds the floor's deceleration (sqrt(0.5) g):
-  # the two slow down as one, at Coulomb's rate.
+  # The top link's budget (mu_pair(1, 1) g = g) holds the floor's deceleration
+  # (mu_pair(0.5, 1) g = min(0.5, 1) g; sqrt(0.5) g under issue 18's geometric mean): the
+  # two slow down as one, at Coulomb's rate.
   final, traj = _rollout(30)(stack(1.0, vel=(5.0, 0.0), floor_mu=0.5))
   np.testing.assert_array_equal(traj.vel[:, 1, 0], traj.vel[:, 2, 0])
-  assert float(final.vel[1, 0]) == pytest.approx(5.0 - 0.5 * np.sqrt(0.5) * G, rel=1e-5)
+  mu_floor = min(0.5, 1.0)
+  assert float(final.vel[1, 0]) == pytest.approx(5.0 - 0.5 * mu_floor * G, rel=1e-5)
 
 
 def test_travel_depends_on_the_top_links_coefficient():
@@ -83,6 +85,23 @@ def test_travel_depends_on_the_top_links_coefficient():
   grad = float(jax.grad(travel)(0.05))
   eps = 1e-3
   fd = (float(travel(0.05 + eps)) - float(travel(0.05 - eps))) / (2 * eps)
+  assert grad < 0
+  assert grad == pytest.approx(fd, rel=0.05)
+
+
+def test_travel_has_a_finite_derivative_in_a_coefficient_at_zero():
+  # Issue 43 item 2: with the pair coefficient sqrt(mu_i mu_j), d travel / d mu_top was 0 at
+  # mu_top = 0 and unbounded just above. min(mu_i, mu_j) has derivative 1 there, and the
+  # gradient at 0 (a link without a budget, sliding: friction's tie rule) equals the
+  # one-sided difference (travel is linear in the budget while the top box slips).
+  def travel(mu):
+    world = stack(0.0, vel=(5.0, 0.0), floor_mu=0.5)
+    world = world.replace(friction=world.friction.at[2].set(mu))
+    return _rollout(30)(world)[0].pos[2, 0]
+
+  grad = float(jax.grad(travel)(0.0))
+  eps = 1e-2
+  fd = (float(travel(eps)) - float(travel(0.0))) / eps
   assert grad < 0
   assert grad == pytest.approx(fd, rel=0.05)
 

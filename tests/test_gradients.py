@@ -273,3 +273,85 @@ def test_jvp_matches_finite_differences_on_smooth_scenes(data):
     tol = TOL["jvp_smooth"]
     for name, got in (("jvp", fwd @ direction), ("grad", grad @ direction)):
       np.testing.assert_allclose(got, wanted[0], rtol=tol["rtol"], atol=tol["atol"], err_msg=name)
+
+
+# --- Parameters where researchers look (issue 43 item 2) ----------------------------------
+
+def test_mass_is_first_class_and_differentiable_through_a_rollout():
+  # Box 0 (mass 1, speed 2) hits box 1 (mass m) and both move on at 2 / (1 + m); a wall
+  # (mass inf) stands beyond reach. The world is built by `World.create` from the traced
+  # masses (`with_mass` inside): d x1 / d m equals central differences, and the wall's
+  # entry of the gradient is 0, not NaN.
+  cfg = jc.Config(depth=2, gravity=False, friction=False, one_way=False, layers=False,
+                  sensors=False)
+  pos, half, vel = [[0.0, 0.0], [1.5, 0.0], [9.0, 0.0]], [0.5, 0.5], [[2.0, 0.0], [0.0, 0.0],
+                                                                    [0.0, 0.0]]
+
+  def x1(mass):
+    world = jc.World.create(pos, half, mass, vel=vel, gravity=(0.0, 0.0))
+    return jc.rollout(world, cfg, 30)[0].pos[1, 0]
+
+  m = jnp.array([1.0, 2.0, jnp.inf])
+  x1_and_grad = jax.jit(jax.value_and_grad(x1))  # One program for the gradient and values.
+  grad = np.asarray(x1_and_grad(m)[1])
+  h = 1e-2
+  xs = [float(x1_and_grad(m.at[1].add(s))[0]) for s in (h, -h)]
+  assert np.all(np.isfinite(grad)) and grad[2] == 0.0
+  np.testing.assert_allclose(grad[1], (xs[0] - xs[1]) / (2 * h), rtol=1e-2)
+  assert grad[1] < 0  # A heavier box is pushed less far.
+  w = jc.World.create(pos, half, [1.0, 2.0, np.inf])
+  np.testing.assert_array_equal(w.with_mass(m).inv_mass, w.inv_mass)
+  assert w.mass.tolist() == [1.0, 2.0, np.inf]
+  g = jax.grad(lambda inv: jnp.sum(w.replace(inv_mass=inv).mass[:2]))(w.inv_mass)
+  assert g.tolist() == [-1.0, -4.0, 0.0]  # d (1 / inv) / d inv, 0 at the wall.
+  with pytest.raises(ValueError, match="masses must be > 0"):
+    w.with_mass([1.0, 0.0, 1.0])
+
+
+
+# --- Friction at rest: the piece a perturbation of one body enters (issue 43 item 0) ------
+# Two boxes stacked on a floor, at rest, the top box given vx = s: the lower box's final x
+# is s / 120 for |s| in 1e-5..1e-2, a linear piece through 0, but jax.grad gave 1/60 at
+# s = 0 (the resting links' derivative split each body's mass over every link with a
+# budget, so the floor stopped only part of the motion in the derivative).
+
+REST_CFG = jc.Config(depth=2, links=1, broadphase="dense", one_way=False, layers=False,
+                     sensors=False)
+REST_STEPS = 20
+
+
+def _rest_loss(s, world, weights):
+  w = world.replace(vel=world.vel.at[2, 0].set(s))
+  final, _ = jc.rollout(w, REST_CFG, REST_STEPS)
+  return jnp.sum(weights * final.pos[1:, 0])
+
+
+_rest_value_and_grad = jax.jit(jax.value_and_grad(_rest_loss))
+
+
+@settings(max_examples=4)
+@given(half_a=st.floats(0.3, 0.8), half_b=st.floats(0.2, 0.5), offset=st.floats(-0.5, 0.5),
+       mass_a=st.floats(0.5, 3.0), mass_b=st.floats(0.5, 3.0), mu=st.floats(0.2, 0.8),
+       w_b=st.floats(-1.0, 1.0))
+@example(half_a=0.5, half_b=0.5, offset=0.0, mass_a=1.0, mass_b=1.0, mu=0.3, w_b=0.0)
+def test_a_push_on_a_resting_stack_has_the_gradient_of_its_piece(half_a, half_b, offset, mass_a,
+                                                                  mass_b, mu, w_b):
+  # A box (B) on a box (A) on a floor, at rest; B gets vx = s. The loss weighs the two
+  # boxes' final x. Where the loss is linear in s around 0 (one-sided differences agree),
+  # grad at 0 equals the central difference (float64).
+  with jax.enable_x64(True):
+    x_b = offset * min(half_a, half_b)
+    world = jc.World.create([[0.0, -0.5], [0.0, half_a], [x_b, 2 * half_a + half_b]],
+                            [[5.0, 0.5], [half_a, half_a], [half_b, half_b]],
+                            [np.inf, mass_a, mass_b], friction=mu)
+    weights = jnp.array([1.0, w_b])
+    value = lambda s: float(_rest_value_and_grad(jnp.float64(s), world, weights)[0])
+    base, grad = _rest_value_and_grad(jnp.float64(0.0), world, weights)
+    h = 1e-4
+    right, left = (value(h) - float(base)) / h, (float(base) - value(-h)) / h
+    central = (value(h) - value(-h)) / (2 * h)
+  scale = abs(central) + 1e-12
+  if (half_a, half_b, offset, mass_a, mass_b, w_b) == (0.5, 0.5, 0.0, 1.0, 1.0, 0.0):
+    assert abs(right - left) <= 1e-6 * scale and abs(central - 1 / 120) < 1e-9  # The issue's.
+  assume(abs(right - left) <= 1e-6 * scale)
+  np.testing.assert_allclose(float(grad), central, rtol=1e-6)

@@ -324,6 +324,52 @@ def test_converge_mode_is_forward_only():
     jax.grad(loss)(0.0, jc.Config(depth=4, converge=True))
 
 
+def test_converge_mode_under_grad_names_the_alternative():
+  # Issue 43 item 2: the error was JAX's own, about while_loops; it now names the fix (and
+  # is raised before anything compiles). Forward mode is not refused.
+  world = jc.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0, gravity=(0.0, 0.0))
+  cfg = jc.Config(depth=1, converge=True)
+  final_x = lambda v: jc.rollout(world.replace(vel=v), cfg, 3)[0].pos[0, 0]
+  for grad_fn in (jax.grad, lambda f: jax.jit(jax.grad(f))):
+    with pytest.raises(ValueError, match=r"converge=True\) is forward-only.*converge=False"):
+      grad_fn(final_x)(world.vel)
+  with pytest.raises(ValueError, match=r"step: Config\(converge=True\) is forward-only"):
+    jax.grad(lambda v: jc.step(world.replace(vel=v), cfg).pos[0, 0])(world.vel)
+  with pytest.raises(ValueError, match=r"resolve: Config\(converge=True\) is forward-only"):
+    jax.grad(lambda p: jc.resolve(world.replace(pos=p), cfg).pos[0, 0])(world.pos)
+
+
+def test_a_traced_horizon_masks_the_steps_beyond_it():
+  # Issue 43 item 2: one program for every horizon up to n_steps. Two boxes coasting at
+  # 3 u/s, a batch with one horizon per world (h and h + 3): x = 3 h dt and d x / d v =
+  # h dt, for h = 0 and 4 (no recompile); the trajectory repeats the final state past h.
+  world = jc.World.create([[0.0, 0.0]], [0.5, 0.5], 1.0, vel=[[3.0, 0.0]], gravity=(0.0, 0.0))
+  batch = jc.stack([world, world])
+  cfg = jc.Config(depth=1, gravity=False, friction=False, immovable=False, one_way=False,
+                  layers=False, sensors=False)
+
+  @jax.jit
+  def run(v, h):
+    def x(v):
+      final, traj = jc.rollout(batch.replace(vel=v), cfg, 10, horizon=h)
+      return jnp.sum(final.pos[:, 0, 0]), (final, traj)
+    return jax.value_and_grad(x, has_aux=True)(v)
+
+  for h in (0, 4):
+    hs = np.array([h, h + 3])
+    (_, (final, traj)), grad = run(batch.vel, jnp.asarray(hs, jnp.int32))
+    np.testing.assert_allclose(np.asarray(final.pos[:, 0, 0]), 3.0 * hs * cfg.dt, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(grad[:, 0, 0]), hs * cfg.dt, rtol=1e-6)
+    for b, hb in enumerate(hs):
+      np.testing.assert_array_equal(traj.pos[b, hb:], np.broadcast_to(final.pos[b], (10 - hb, 1, 2)))
+      np.testing.assert_array_equal(traj.vel[b, hb:], np.broadcast_to(final.vel[b], (10 - hb, 1, 2)))
+  assert run._cache_size() == 1
+  with pytest.raises(ValueError, match="horizon must be an integer"):
+    jc.rollout(world, cfg, 10, horizon=2.5)
+  with pytest.raises(ValueError, match=r"horizon must be an integer of shape \(\) or \(2,\)"):
+    jc.rollout(batch, cfg, 10, horizon=jnp.array([1, 2, 3]))
+
+
 # --- Closed-loop rollouts (issue 12) ----------------------------------------------------
 
 def _player_and_box():

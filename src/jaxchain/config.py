@@ -69,7 +69,8 @@ class Config:
       its second hop when that hop changed nothing (in the whole batch), else runs its
       `depth` hops; the same answer as `depth` hops, bit for bit. Faster where
       nothing is carried (free fall), as fast on a settled room; not
-      reverse-differentiable (`jax.grad` raises), so leave it off for gradients.
+      reverse-differentiable: `jax.grad` through `rollout`, `step` or `resolve` raises
+      a `ValueError` naming `converge=False`, so leave it off for gradients.
     neighbors: width of the neighbour table, or None to read the coarse candidates
       (dense pairs or grid rows, by `broadphase`) in every pass. When set, the
       coarse table is filtered into the partners of each movable body within
@@ -218,10 +219,17 @@ class Config:
     1.5 * most partners within the margin now)`; it is left out (None) when that is
     more than half the coarse row (small worlds). Explicit `overrides` always win.
 
+    `keep`: switches to leave on whatever the world holds now, any of `("friction",
+    "gravity", "immovable", "one_way", "sensors", "layers")`. For fitting: a guess of
+    friction 0 or gravity 0 would otherwise switch the feature off, and its gradient
+    would be 0 silently (the feature is not in the compiled step). `keep=("friction",)`
+    is `friction=True` that reads better beside other kept features.
+
     Raises:
       ValueError: when a body would need more than `MAX_SUBSTEPS` substeps (a tiny
         or very fast body: the message names it, its speed and half-extent); pass
-        `substeps=` explicitly to skip that check. And for invalid overrides.
+        `substeps=` explicitly to skip that check. And for invalid overrides or an
+        unknown `keep` name.
 
     Examples:
       >>> import jaxchain as jc
@@ -229,5 +237,7 @@ class Config:
       >>> cfg = jc.Config.for_world(w)
       >>> cfg.immovable, cfg.depth, cfg.has_gravity, cfg.has_friction
       (False, 2, False, False)
+      >>> jc.Config.for_world(w, keep=("friction", "gravity")).has_friction
+      True
     """
     return sizing.for_world(cls, world, **overrides)

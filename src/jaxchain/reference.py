@@ -367,7 +367,7 @@ def step(pos, vel, half, mass, *, friction=0.0, gravity=(0.0, -9.81), dt: float 
      height, rests on the floor, friction included);
   4. friction: one Jacobi step on units with mass splitting, as
      `jaxchain.velocity.friction` documents: per link `clip(sliding / (k_i / F_i +
-     k_j / F_j), +-sqrt(mu_i mu_j) * normal impulse)`, with k the body's number of
+     k_j / F_j), +-mu_ij * normal impulse)`, `mu_ij = pair_coefficient(mu_i, mu_j)`, with k the body's number of
      links whose budget is positive and F each side's unit: the body and what sticks
      to it on its far side (links sliding slower than `stick` before the contacts act),
      which takes the impulse rigidly.
@@ -482,19 +482,25 @@ def _crush(vel, movable, links, crushed, start_vel):
   return out
 
 
+def pair_coefficient(a: float, b: float) -> float:
+  """A pair's friction coefficient: the smaller of the bodies', `min(a, b)`, as
+  `jaxchain.core.layout.pair_coefficient` computes it."""
+  return min(a, b)
+
+
 def _friction(vel, before, mass, mu, links, normal, stick, slip=1e-6):
   """Coulomb friction on units (see `jaxchain.velocity.friction`): `before` are the
   velocities that decide which links stick (slide slower than `stick`); links sliding
   slower than `slip` take no part. Solved on those units, then up to
   `FRICTION_ROUNDS - 1` slip rounds: of the sticking links whose budget
-  `sqrt(mu_i mu_j) * normal` cannot hold the shear that moving as one needs, each
+  `pair_coefficient(mu_i, mu_j) * normal` cannot hold the shear that moving as one needs, each
   body's most overloaded one (largest shear over budget) slips: it leaves the units and
   carries its budget the way the shear pointed (kinetic friction), and the impulses are
   solved again."""
   n = len(vel)
   movable = ~np.isinf(mass)
   sticking = [abs(before[i, 1 - a] - before[j, 1 - a]) <= stick for i, j, a, _ in links]
-  budgets = [np.sqrt(mu[i] * mu[j]) * lam for (i, j, _, _), lam in zip(links, normal)]
+  budgets = [pair_coefficient(mu[i], mu[j]) * lam for (i, j, _, _), lam in zip(links, normal)]
   rubbing = [b > 0 and abs(vel[i, 1 - a] - vel[j, 1 - a]) > slip
              for (i, j, a, _), b in zip(links, budgets)]
 

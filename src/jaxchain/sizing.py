@@ -72,6 +72,10 @@ MARGIN_FRACTION = 0.5
 MARGIN_HEADROOM = 4.0
 
 
+# The switches `for_world(..., keep=...)` leaves on whatever the world holds now.
+KEEPABLE = ("friction", "gravity", "immovable", "one_way", "sensors", "layers")
+
+
 def for_world(cls, world, /, **overrides):
   """The body of `Config.for_world` (the public entry point, documented there).
 
@@ -84,7 +88,8 @@ def for_world(cls, world, /, **overrides):
   Args:
     cls: the config class (`jaxchain.Config`).
     world: a (host) `World`, or a padded batch of worlds.
-    **overrides: `Config` fields; explicit ones always win.
+    **overrides: `Config` fields; explicit ones always win. And `keep`: names of
+      `KEEPABLE` switches to leave on even where the world does not use them now.
 
   Returns:
     A `cls` instance sized for `world`.
@@ -93,6 +98,11 @@ def for_world(cls, world, /, **overrides):
     ValueError: when a body would need more than `MAX_SUBSTEPS` substeps, or for
       invalid overrides.
   """
+  keep = overrides.pop("keep", ())
+  keep = (keep,) if isinstance(keep, str) else tuple(keep)
+  unknown = [k for k in keep if k not in KEEPABLE]
+  if unknown:
+    raise ValueError(f"Config.for_world: keep= takes names from {KEEPABLE}, got {unknown}")
   active = np.asarray(world.active)
   inv_mass = np.asarray(world.inv_mass)
   n = int(world.pos.shape[-2])
@@ -105,11 +115,12 @@ def for_world(cls, world, /, **overrides):
       one_way=bool(np.any(active & np.asarray(world.one_way))),
       sensors=bool(np.any(active & np.asarray(world.sensor))),
       layers=uses_layers(world))
+  switches.update({k: True for k in keep if k in switches})
   switches.update({k: v for k, v in overrides.items() if k in switches})
   derived_keys = ("depth", "immovable", "broadphase", "grid", "substeps", "links", "neighbors",
                   "margin")
   base = cls(**{**{k: v for k, v in overrides.items() if k not in derived_keys}, **switches})
-  derived = dict(immovable=bool(np.any(active & (inv_mass == 0))))
+  derived = dict(immovable=bool(np.any(active & (inv_mass == 0))) or "immovable" in keep)
   if "substeps" not in overrides:
     need = _substep_need(world, base.dt, gravity if base.gravity else 0.0)
     if need.substeps > MAX_SUBSTEPS:

@@ -88,7 +88,8 @@ def _resolve_kernel(config: Config, world: World) -> World:
 
 
 def _rollout_kernel(config: Config, n_steps: int, policy, record: tuple[str, ...],
-                    world: World, controls: jax.Array | None) -> tuple[World, Trajectory]:
+                    world: World, controls: jax.Array | None,
+                    horizon: jax.Array | None = None) -> tuple[World, Trajectory]:
   state, bodies = core.from_world(world)
   controls = None if controls is None else _xy_minor(controls)  # [T, 2, n, B]
   policy_minor = None
@@ -98,7 +99,8 @@ def _rollout_kernel(config: Config, n_steps: int, policy, record: tuple[str, ...
       accel = jax.vmap(lambda w: _policy_accel(policy, w, t))(view)
       return _xy_minor(accel)
 
-  final, traj = core.step.rollout(state, bodies, config, n_steps, controls, policy_minor, record)
+  final, traj = core.step.rollout(state, bodies, config, n_steps, controls, policy_minor, record,
+                                  horizon)
   # [T, k, n, B] -> [B, T, n, k]; [T, n, B] -> [B, T, n]; [T, B] -> [B, T].
   def major(name, x):
     if name in ("pos", "vel", "touching"):
@@ -230,7 +232,6 @@ def _batched(kernel: Callable, *args):
 
 # -------------------------------------------------------------------- public functions
 
-@functools.partial(jax.jit, static_argnames="config")
 def resolve(world: World, config: Config) -> World:
   """Collision resolution only: moves bodies out of each other, velocities untouched.
 
@@ -250,6 +251,12 @@ def resolve(world: World, config: Config) -> World:
     >>> [round(float(x), 4) for x in jc.resolve(w, jc.Config()).pos[:, 0]]
     [-0.1, 0.9, 1.9]
   """
+  check_differentiable(config, "resolve", world)
+  return _resolve_jit(world, config)
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def _resolve_jit(world: World, config: Config) -> World:
   if _check_world(world, "resolve"):
     return _batched(functools.partial(_resolve_kernel, config), world)
   return _single_resolve(config)(world)
@@ -264,7 +271,6 @@ def _step(world: World, config: Config, accel: jax.Array | None) -> World:
   return _single_step(config)(world, accel)
 
 
-@functools.partial(jax.jit, static_argnames="config")
 def step(world: World, config: Config, accel: jax.Array | None = None) -> World:
   """One time step: gravity and `accel`, semi-implicit Euler, chain resolution,
   velocity update, friction; `config.substeps` times with `dt / substeps`.
@@ -287,7 +293,14 @@ def step(world: World, config: Config, accel: jax.Array | None = None) -> World:
     >>> float(w.pos[0, 1]), float(w.vel[0, 1])  # rests on the floor, stopped by it
     (0.5, 0.0)
   """
-  return _step(world, config, accel)
+  check_differentiable(config, "step", world, accel)
+  return _step_jit(world, config, accel)
+
+
+_step_jit = jax.jit(_step, static_argnames="config")
+# `step` and `resolve` check their arguments, then call these jitted programs.
+step._cache_size = _step_jit._cache_size
+resolve._cache_size = _resolve_jit._cache_size
 
 
 def make_step(config: Config):
@@ -309,7 +322,8 @@ def make_step(config: Config):
 
 def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | None = None, *,
             policy: Callable[[World, jax.Array], jax.Array] | None = None,
-            record: Sequence[str] = ()) -> tuple[World, Trajectory]:
+            record: Sequence[str] = (),
+            horizon: jax.Array | int | None = None) -> tuple[World, Trajectory]:
   """`n_steps` steps under `lax.scan`, open-loop (`controls`) or closed-loop (`policy`).
 
   Args:
@@ -331,6 +345,16 @@ def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | No
     record: which extra per-step outputs the trajectory keeps, of
       `("status", "touching", "crushed", "sensed")` (static; default none, to keep
       memory small).
+    horizon: optional int (traced: any value runs the same compiled program), or one
+      per world (`[B]`) for a batch: only the first `horizon` steps are taken, at most
+      `n_steps`. From step `horizon` on the world is kept as it is (velocities
+      included), so `final` is the world after `horizon` steps and the trajectory's
+      entries `t >= horizon` repeat it; a loss masked to `t < horizon` (or read from
+      `final`) is the loss of a `horizon`-step rollout, gradients included. The steps
+      past the horizon cost nothing once every world of the batch is past it (a
+      `lax.cond` skips them); under `jax.grad` and `jax.vmap` the condition is a
+      select and they are computed and discarded. `n_steps` (static) is the maximum:
+      compile once for the longest horizon.
 
   Returns:
     `(final_world, trajectory)` with `trajectory.pos` of shape `[n_steps, n, 2]`
@@ -338,7 +362,13 @@ def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | No
 
   Raises:
     ValueError: for controls of the wrong shape, both `controls` and `policy`, a
-      policy whose output is not `[n, 2]`, or an unknown `record` name.
+      policy whose output is not `[n, 2]`, an unknown `record` name, or a `horizon`
+      that is not an integer of shape `()` (or `[B]` for a batch); and for
+      `Config(converge=True)` under reverse-mode differentiation (`jax.grad`,
+      `jax.vjp`, `jax.linearize`), whose `while_loop`s JAX cannot transpose: use
+      `converge=False` for gradients (the same answers). Under `jax.grad` of a function
+      that is itself jitted the check cannot see the differentiation: JAX's own
+      `while_loop` error comes instead.
 
   Examples:
     >>> import jax.numpy as jnp
@@ -359,6 +389,14 @@ def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | No
   if controls is not None and policy is not None:
     raise ValueError("rollout: pass controls= (open loop) or policy= (closed loop), not both; "
                      "add the controls inside the policy: policy(world, t) + controls[t]")
+  check_differentiable(config, "rollout", world, controls)
+  if horizon is not None:
+    horizon = jnp.asarray(horizon)
+    want = world.pos.shape[:1] if batch else ()
+    if horizon.dtype.kind not in "iu" or horizon.shape not in ((), want):
+      raise ValueError(f"rollout: horizon must be an integer of shape () or {want}, got "
+                       f"{horizon.dtype} {horizon.shape}")
+    horizon = jnp.broadcast_to(horizon.astype(jnp.int32), want)
   if controls is not None:
     controls = jnp.asarray(controls)
     one = world.pos.shape[-2:]
@@ -368,17 +406,48 @@ def rollout(world: World, config: Config, n_steps: int, controls: jax.Array | No
     if controls.shape != lead + (n_steps,) + one:
       raise ValueError(f"rollout: controls must have shape {lead + (n_steps,) + one} "
                        f"or {lead + one}, got {controls.shape}")
-  return _rollout(world, config, n_steps, controls, policy, record)
+  return _rollout(world, config, n_steps, controls, policy, record, horizon)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "n_steps", "policy", "record"))
 def _rollout(world: World, config: Config, n_steps: int, controls: jax.Array | None,
              policy: Callable[[World, jax.Array], jax.Array] | None,
-             record: tuple[str, ...]) -> tuple[World, Trajectory]:
+             record: tuple[str, ...], horizon: jax.Array | None = None
+             ) -> tuple[World, Trajectory]:
   """`rollout` after its checks, jitted (config, n_steps, policy and record static)."""
   kernel = functools.partial(_rollout_kernel, config, n_steps, policy, record)
   if world.pos.ndim == 3:
-    return _batched(kernel, world, controls)
+    return _batched(kernel, world, controls, horizon)
   if policy is not None:  # A policy is user code closing over anything: no custom rule.
-    return _drop_axis(kernel(_add_axis(world), None))
-  return _single_rollout(config, n_steps, record)(world, controls)
+    return _drop_axis(kernel(_add_axis(world), None, _add_axis(horizon)))
+  return _single_rollout(config, n_steps, record)(world, controls, horizon)
+
+
+def _reverse_mode(x) -> bool:
+  """Whether `x` is traced by reverse-mode differentiation (`jax.grad`, `jax.vjp`,
+  `jax.linearize`: a linearize tracer, perhaps under `vmap`); forward mode (`jax.jvp`)
+  and plain values are not."""
+  for _ in range(64):  # Nested transformations: one tracer inside the next.
+    if not isinstance(x, jax.core.Tracer):
+      return False
+    kind = type(x).__name__
+    if kind == "LinearizeTracer":
+      return True
+    if kind == "JVPTracer":  # Linearize by jvp + partial evaluation: an unknown tangent.
+      if type(getattr(x, "tangent", None)).__name__ == "JaxprTracer":
+        return True
+      x = x.primal
+    else:
+      x = getattr(x, "val", getattr(x, "primal", None))
+  return False
+
+
+def check_differentiable(config: Config, fn: str, *trees) -> None:
+  """Raises the error `Config.converge` gives under reverse-mode differentiation (its
+  hop loops are `while_loop`s, which JAX cannot transpose), naming the alternative."""
+  if config.converge and any(_reverse_mode(x) for x in jax.tree.leaves(trees)):
+    raise ValueError(
+        f"{fn}: Config(converge=True) is forward-only: its hop loops are while_loops, which "
+        f"jax.grad (reverse mode) cannot differentiate. Use config.replace(converge=False) "
+        f"for gradients: the same answers bit for bit, with fixed-length hop loops "
+        f"(jax.jvp, forward mode, works with either)")

@@ -22,7 +22,8 @@ class World:
 
   Every field is a traced array: `jax.grad` and `jax.vmap` reach the physical
   ones, `pos`, `vel`, `half`, `inv_mass`, `friction` and `gravity`, which are the
-  differentiable fields. `active`, `crushed` and `status` are flags (bool or int),
+  differentiable fields. Masses are stored as `inv_mass`; read them with
+  `world.mass` and set them (differentiably) with `world.with_mass(m)`. `active`, `crushed` and `status` are flags (bool or int),
   never differentiated.
 
   Attributes:
@@ -86,6 +87,47 @@ class World:
     """`[n]` bool: active bodies with finite mass."""
     return self.active & (self.inv_mass > 0)
 
+  @property
+  def mass(self) -> jax.Array:
+    """`[n]` masses, `inf` for immovable bodies (`inv_mass == 0`): `1 / inv_mass`,
+    differentiable, with a zero (not NaN) gradient at the immovable ones."""
+    return mass_from_inverse(self.inv_mass)
+
+  def with_mass(self, mass) -> World:
+    """A copy with the masses `mass` (`[n]`, `[B, n]` for a batch, or a scalar for
+    all bodies), in `(0, inf]`; `inf` is immovable.
+
+    Stored as `inv_mass = 1 / mass`, so `jax.grad` of a rollout with respect to `mass`
+    works (`d inv_mass / d mass = -1 / mass**2`); an immovable body (`inf`) has
+    inverse 0 and gradient 0, never NaN (the safe-`where` pattern). A concrete `mass`
+    is checked like `World.create` checks it; a traced one (inside `jit`, `grad`,
+    `vmap`) passes unchecked.
+
+    Raises:
+      ValueError: for a concrete mass that is NaN, `<= 0`, or of the wrong shape.
+
+    Examples:
+      >>> import jax
+      >>> import jaxchain as jc
+      >>> w = jc.World.create([[0.0, 0.0], [1.5, 0.0]], [0.5, 0.5], [1.0, float("inf")])
+      >>> w.with_mass([2.0, float("inf")]).inv_mass.tolist(), w.mass.tolist()
+      ([0.5, 0.0], [1.0, inf])
+      >>> jax.grad(lambda m: w.with_mass(m).inv_mass[0])(jax.numpy.array([2.0, jax.numpy.inf]))
+      Array([-0.25,  0.  ], dtype=float32)
+    """
+    shape, dtype = self.inv_mass.shape, self.inv_mass.dtype
+    if not isinstance(mass, jax.core.Tracer):
+      host = _as_float("mass", mass)
+      if host.shape not in ((), shape):
+        raise ValueError(f"mass: expected shape {shape} or a scalar, got {host.shape}")
+      if np.any(np.isnan(host)):
+        raise ValueError(f"mass: NaN mass for {_bodies('inv_mass', np.broadcast_to(np.isnan(host), shape))}")
+      if np.any(host <= 0):
+        raise ValueError(f"mass: masses must be > 0 (use inf for immovable); "
+                         f"{_bodies('inv_mass', np.broadcast_to(host <= 0, shape))} are not")
+    mass = jnp.broadcast_to(jnp.asarray(mass, dtype), shape)
+    return dataclasses.replace(self, inv_mass=inverse_mass(mass))
+
   @classmethod
   def create(cls, pos, half, mass, vel=None, active=None, *, friction=0.0,
              gravity=(0.0, -9.81), one_way=False, sensor=False, category=DEFAULT_CATEGORY,
@@ -95,7 +137,10 @@ class World:
     Args:
       pos: `[n, 2]` centres.
       half: `[n, 2]` half-extents, or `[2]` for one size shared by all bodies.
-      mass: `[n]` masses in `(0, inf]`, or a scalar; `inf` means immovable.
+      mass: `[n]` masses in `(0, inf]`, or a scalar; `inf` means immovable. May be
+        traced (inside `jax.grad`, `jit`, `vmap`): then it is not checked and is set
+        by `World.with_mass`, so a gradient reaches it; the other fields must stay
+        host data.
       vel: optional `[n, 2]` velocities (default zero).
       active: optional `[n]` bool mask (default all active).
       friction: `[n]` per-body Coulomb coefficients `>= 0`, or a scalar for all
@@ -130,6 +175,13 @@ class World:
       >>> w.pos.shape, w.inv_mass.tolist(), w.gravity.tolist()
       ((2, 2), [1.0, 0.0], [0.0, -9.8100004196167])
     """
+    if isinstance(mass, jax.core.Tracer):  # Traced masses: checked by nobody, set last.
+      n = np.shape(pos)[0]
+      if mass.shape not in ((), (n,)):
+        raise ValueError(f"mass: expected shape ({n},) or a scalar to match pos, got {mass.shape}")
+      world = cls.create(pos, half, 1.0, vel, active, friction=friction, gravity=gravity,
+                         one_way=one_way, sensor=sensor, category=category, mask=mask)
+      return world.with_mass(mass)
     pos = _as_float("pos", pos)
     if pos.ndim != 2 or pos.shape[1] != 2:
       raise ValueError(f"pos: expected shape (n, 2), got {pos.shape}")
@@ -223,9 +275,7 @@ class World:
     pos = jnp.asarray(pos, dtype)
     n = pos.shape[0]
     per_body = lambda x, d, shape=(n,): jnp.broadcast_to(jnp.asarray(x, d), shape)
-    mass = per_body(mass, dtype)
-    inf = jnp.isinf(mass)
-    inv_mass = jnp.where(inf, 0.0, 1.0 / jnp.where(inf, 1.0, mass)).astype(dtype)
+    inv_mass = inverse_mass(per_body(mass, dtype))
     return cls(pos=pos, vel=per_body(0.0 if vel is None else vel, dtype, (n, 2)),
                half=per_body(half, dtype, (n, 2)), inv_mass=inv_mass,
                active=per_body(True if active is None else active, bool),
@@ -244,7 +294,8 @@ class World:
     error, not a mask), and it is checked like `World.create` checks its input: no
     NaN or inf in `pos`, `vel` or `gravity`, `half > 0` and finite, `inv_mass` and
     `friction` finite and `>= 0`. Traced values (inside `jit`, `vmap` or `grad`) are
-    passed through unchecked, so `replace` works in traced code.
+    passed through unchecked, so `replace` works in traced code. Masses are set
+    with `with_mass` (the field is `inv_mass`).
 
     Raises:
       ValueError: naming the field (and the bodies) for a bad concrete value.
@@ -265,7 +316,9 @@ class World:
     checked = {}
     for name, value in changes.items():
       if name not in fields:
-        raise TypeError(f"replace: World has no field {name!r} (fields: {', '.join(sorted(fields))})")
+        hint = "; set masses with world.with_mass(m)" if name == "mass" else ""
+        raise TypeError(f"replace: World has no field {name!r} (fields: "
+                        f"{', '.join(sorted(fields))}){hint}")
       checked[name] = value if isinstance(value, jax.core.Tracer) else _checked(
           name, value, getattr(self, name))
     return dataclasses.replace(self, **checked)
@@ -285,6 +338,19 @@ class World:
     cat = lambda x, fill: jnp.concatenate([x, jnp.full((extra,) + x.shape[1:], fill, x.dtype)])
     return World(**{f: cat(getattr(self, f), fill) for f, fill in _PAD_FILL.items()},
                  gravity=self.gravity, status=self.status)
+
+
+def inverse_mass(mass: jax.Array) -> jax.Array:
+  """`1 / mass`, 0 where `mass` is `inf`, gradient-safe: the gradient there is 0, not
+  NaN (the divide never sees `inf`)."""
+  inf = jnp.isinf(mass)
+  return jnp.where(inf, 0.0, 1.0 / jnp.where(inf, 1.0, mass)).astype(mass.dtype)
+
+
+def mass_from_inverse(inv_mass: jax.Array) -> jax.Array:
+  """`1 / inv_mass`, `inf` where `inv_mass` is 0, with a zero gradient there."""
+  fixed = inv_mass == 0
+  return jnp.where(fixed, jnp.inf, 1.0 / jnp.where(fixed, 1.0, inv_mass)).astype(inv_mass.dtype)
 
 
 def stack(worlds: Sequence[World], capacity: int | None = None) -> World:

@@ -17,8 +17,8 @@ from jax import lax
 
 from jaxchain.core import chain
 from jaxchain.core.contacts import Links
-from jaxchain.core.layout import (any_world, batch_any, choose, fold, opposite, safe_divide,
-                                  safe_sqrt, vary)
+from jaxchain.core.layout import (any_world, batch_any, choose, fold, opposite, pair_coefficient,
+                                  safe_divide, vary)
 
 # Linked bodies whose tangential velocities differ by at most this (units per second)
 # move together for friction: they are one unit, and friction on the bottom one stops
@@ -43,7 +43,8 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   far side (`shared[e, i]`: the boxes stacked on a box that slides on a floor), and
   what moves with j is j's unit `shared[d, j]`, both made of the links that stick. The
   impulse stops the two units' relative sliding, clipped to the link's budget
-  `mu_pair * normal` (`mu_pair = sqrt(mu_i mu_j)`, as Box2D combines them); each unit
+  `mu_pair * normal` (`mu_pair = min(mu_i, mu_j)`: `layout.pair_coefficient`, with a
+  finite derivative at 0); each unit
   takes it rigidly, its bodies reached in `depth` hops.
 
   Friction acts per link: a unit moves as one only through links whose own Coulomb
@@ -78,7 +79,7 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   dtype = vel.dtype
   tangent = jnp.stack([vel[1], vel[1], vel[0], vel[0]])  # [4, n, B]
   sliding = jnp.where(f.mask, tangent[None] - f.front(tangent), 0.0)
-  mu_pair = safe_sqrt(coefficient[None, None] * f.bodies(coefficient))
+  mu_pair = pair_coefficient(coefficient[None, None], f.bodies(coefficient))
   budget = jnp.where(f.mask, mu_pair * normal, 0.0)
   rubbing = (budget > 0) & (jnp.abs(sliding) > SLIP)
   movable = fold("any", shared > 0)[None]
@@ -87,10 +88,9 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
   k = per_body(rubbing)
   # Derivatives: a link with a budget that slides by at most `SLIP` (at rest: `SLIP` only
   # keeps rounding from acting) takes the derivative of the impulse that stops it, with
-  # mass splitting over every link with a budget (the piece a perturbation that makes it
-  # slide steps into); every other link its impulse's own.
+  # mass splitting over its bodies' rubbing links and itself (the piece a perturbation
+  # that makes it slide steps into); every other link its impulse's own.
   resting = (budget > 0) & ~rubbing
-  k_d = per_body(budget > 0)
 
   def solve(shared, sticking, slip):
     """Impulses on the units `shared`, the slipped links carrying `slip`. Returns
@@ -98,8 +98,9 @@ def friction(vel: jax.Array, f: Links, normal: jax.Array, coefficient: jax.Array
     of its unit along each direction, `count` its sticking pushers along it."""
     unit_i = opposite(shared)  # At (d, i): i's unit along e.
 
+    free = f.mask & (budget == 0) & (jnp.abs(sliding) > SLIP) & ~sticking
     impulse = choose(_impulses, _impulses_at_rest, f, sliding, unit_i, shared, budget, slip,
-                     rubbing, k, resting, k_d)
+                     rubbing, k, resting, free)
     source = opposite(safe_divide(-jnp.sum(impulse, axis=0), unit_i))  # At (e, i).
     carries = opposite(sticking, 1)  # Rows of the reversed table, sticking.
     count = jnp.sum(carries, axis=0).astype(dtype)
@@ -161,19 +162,35 @@ def _stops(f: Links, sliding, unit_i, shared, budget, k):
   return jnp.clip(safe_divide(sliding, inv_i[None] + inv_j), -budget, budget)
 
 
-def _impulses(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d):
+def _impulses(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, free):
   """Each link's friction impulse: the stopping one where it rubs, else `slip`."""
-  del resting, k_d
+  del resting, free
   stop = _stops(f, sliding, unit_i, shared, budget, k)
   return jnp.where(rubbing & (slip == 0), stop, slip)
 
 
-def _impulses_at_rest(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d):
-  """`_impulses`, with the resting links (a budget, sliding within `SLIP`) stopped too,
-  each counting every link with a budget for its mass splitting (`k_d`)."""
-  rest = _stops(f, sliding, unit_i, shared, budget, k_d)
-  return jnp.where(resting & (slip == 0), rest,
-                   _impulses(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, k_d))
+def _impulses_at_rest(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, free):
+  """`_impulses`, with the resting links (a budget, sliding within `SLIP`) stopped too;
+  and the sliding links without a budget (`free`: a pair coefficient of 0, outside the
+  units) carrying it the way they slide, `sign(sliding) * budget` (0): the piece a
+  coefficient raised from 0 steps into, where the link rubs at its budget (`jnp.clip`
+  would give half of that derivative at a budget of 0, or none).
+
+  A resting link's derivative is that of the impulse that stops it, each of its bodies
+  splitting its mass over its rubbing links and this one (`k + 1`): the piece a
+  perturbation that makes this link slide enters, the bodies' other resting links
+  staying at rest. So a perturbation that reaches one body of a resting stack (a top box
+  pushed sideways, or, the step after, the stack moving on as one over its floor) takes
+  the piece it enters (issue 43 item 0: with every link with a budget counted, the lower
+  box of two at rest moved twice as far in the derivative as in the finite differences:
+  friction stopped only part of the motion at each step), and a stack sliding as one on
+  its floor splits each body's mass over the floor link that rubs and the resting link.
+  A perturbation that makes several resting links of one body slide at once enters a
+  piece with more mass splitting, which this derivative does not take."""
+  rest = _stops(f, sliding, unit_i, shared, budget, k + 1.0)
+  out = jnp.where(resting & (slip == 0), rest,
+                  _impulses(f, sliding, unit_i, shared, budget, slip, rubbing, k, resting, free))
+  return jnp.where(free & (slip == 0), jnp.sign(sliding) * budget, out)
 
 
 def holding(f: Links, total: jax.Array, shared: jax.Array, count: jax.Array) -> jax.Array:

@@ -275,13 +275,18 @@ def _resolve(state: State, bodies: Bodies, config) -> State:
 def rollout(state: State, bodies: Bodies, config, n_steps: int,
             controls: jax.Array | None = None,
             policy: Callable[[State, jax.Array], jax.Array] | None = None,
-            record: Sequence[str] = ()) -> tuple[State, dict[str, jax.Array]]:
+            record: Sequence[str] = (),
+            horizon: jax.Array | None = None) -> tuple[State, dict[str, jax.Array]]:
   """`n_steps` steps under `lax.scan`, in this layout throughout.
 
   Args:
     controls: optional `[n_steps, 2, n, B]` accelerations.
     policy: optional `policy(state, t) -> [2, n, B]` accelerations (closed loop).
     record: names of `State` fields kept per step besides `pos` and `vel`.
+    horizon: optional `[B]` int: world b takes only its first `horizon[b]` steps; from
+      step `horizon[b]` on its state is kept as it is (the steps are computed for the
+      batch while any world still runs them, and skipped, by `lax.cond`, once none
+      does).
 
   Returns:
     `(final, trajectory)`, the trajectory a dict of `[n_steps, ...]` arrays.
@@ -290,7 +295,13 @@ def rollout(state: State, bodies: Bodies, config, n_steps: int,
     s, table = carry
     t, given = xs
     accel = given if policy is None else policy(s, t)
-    s, table = advance(s, table, bodies, config, accel)
+    if horizon is None:
+      s, table = advance(s, table, bodies, config, accel)
+    else:
+      live = t < horizon  # [B]
+      new, table = lax.cond(batch_any(live), lambda: advance(s, table, bodies, config, accel),
+                            lambda: (s, table))
+      s = jax.tree.map(lambda x, y: jnp.where(per_world(live, x), x, y), new, s)
     out = {"pos": s.pos, "vel": s.vel}
     out.update({name: getattr(s, name) for name in record})
     return (s, table), out
