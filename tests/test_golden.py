@@ -71,8 +71,24 @@ def default_level():
             a, b = np.asarray(getattr(one, k)), np.asarray(getattr(batch, k))
             assert np.array_equal(a, b[0]) and np.array_equal(a, b[1]), (t, k, a, b)
 
+      def cell_filling_up():
+        # tests/test_broadphase.py's scene (issue 44 item 6): a cell of capacity 2 that a
+        # third box drifts into; the step loop and the rollout, one answer and no bit.
+        spec = jc.broadphase.GridSpec(origin=(0.0, 0.0), cell=1.0, shape=(6, 6), reach=0.1,
+                                      cell_capacity=2, static_capacity=1, static_entries=4)
+        cfg = jc.Config(gravity=False, friction=False, immovable=False, broadphase="grid",
+                        grid=spec, neighbors=2, margin=0.2, depth=1, closing=0)
+        w = jc.World.create([[2.3, 2.5], [2.7, 2.5], [3.05, 2.5]], [0.1, 0.1], 1.0,
+                            vel=[[0.0, 0.0], [0.0, 0.0], [-1.5, 0.0]], gravity=(0.0, 0.0))
+        final, traj = jc.rollout(w, cfg, 8, record=("status",))
+        for t in range(8):
+          w = jc.step(w, cfg)
+          assert int(w.status) == int(traj.status[t]) == 0, (t, int(w.status), int(traj.status[t]))
+          assert np.array_equal(np.asarray(w.pos), np.asarray(traj.pos[t])), t
+        np.testing.assert_allclose(np.asarray(final.vel)[:, 0], [0.0, -0.75, -0.75], atol=1e-6)
+
       report = {{}}
-      for check in (golden_platformer, one_world_as_batch):
+      for check in (golden_platformer, one_world_as_batch, cell_filling_up):
         try:
           check()
           report[check.__name__] = "OK"
@@ -102,3 +118,10 @@ def test_one_world_rounds_as_the_batch_at_the_default_optimisation_level(default
   y update contracted into a fused multiply-add: 1.752024531 against 1.752024651); the
   suite's -O0 codegen hides it. The copies are concatenated now: bit for bit, 14 steps."""
   assert default_level["one_world_as_batch"] == "OK", default_level["one_world_as_batch"]
+
+
+def test_a_cell_filling_up_gives_one_answer_at_the_default_optimisation_level(default_level):
+  """Issue 44 item 6 at XLA's defaults: `tests/test_broadphase.py`'s cell that fills up,
+  stepped in a loop and rolled out, bit for bit and unflagged (before the grid's retry of
+  a full cell, the step loop set CELL_OVERFLOW from step 2 and both lost the pair)."""
+  assert default_level["cell_filling_up"] == "OK", default_level["cell_filling_up"]
