@@ -45,10 +45,12 @@ for _flag in SUITE_XLA_FLAGS:  # A flag the caller set keeps the caller's value.
 # another subprocess) is loaded instead: about a third of the suite's compiles. A fresh
 # clone starts empty, as every run does. `JAX_COMPILATION_CACHE_DIR` set by the caller is
 # used as it is (and kept).
-SUITE_XLA_CACHE = "JAXCHAIN_SUITE_XLA_CACHE"  # The directory this run made, to remove.
+# Only the process that made it removes it: not a worker, nor a pytest a test starts
+# (benchmarks/suite_time.py's smoke run), which inherit the variable.
+_suite_xla_cache = None
 if "JAX_COMPILATION_CACHE_DIR" not in os.environ and not os.environ.get("PYTEST_XDIST_WORKER"):
-  os.environ["JAX_COMPILATION_CACHE_DIR"] = os.environ[SUITE_XLA_CACHE] = tempfile.mkdtemp(
-      prefix="jaxchain-suite-xla-")
+  _suite_xla_cache = tempfile.mkdtemp(prefix="jaxchain-suite-xla-")
+  os.environ["JAX_COMPILATION_CACHE_DIR"] = _suite_xla_cache
   os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 # The command line keeps its compiled programs in a cache directory of the user's
@@ -145,5 +147,5 @@ def _release_compiled_programs():
 def pytest_unconfigure(config):
   """The run's XLA cache directory removed, by the process that made it."""
   del config
-  if not os.environ.get("PYTEST_XDIST_WORKER") and os.environ.get(SUITE_XLA_CACHE):
-    shutil.rmtree(os.environ.pop(SUITE_XLA_CACHE), ignore_errors=True)
+  if _suite_xla_cache is not None:
+    shutil.rmtree(_suite_xla_cache, ignore_errors=True)
