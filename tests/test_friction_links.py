@@ -75,16 +75,18 @@ def test_a_rough_box_on_a_sliding_stack_stops_with_it():
   assert float(final.vel[1, 0]) == pytest.approx(5.0 - 0.5 * mu_floor * G, rel=1e-5)
 
 
+def _top_travel(mu):
+  """How far the top box of a sliding stack travels in 30 steps, its coefficient `mu`."""
+  world = stack(0.0, vel=(5.0, 0.0), floor_mu=0.5)
+  world = world.replace(friction=world.friction.at[2].set(mu))
+  return _rollout(30)(world)[0].pos[2, 0]
+
+
 def test_travel_depends_on_the_top_links_coefficient():
   # f55f53b: d(travel)/d(mu_top) = 0 (the link's budget was never applied).
-  def travel(mu):
-    world = stack(0.0, vel=(5.0, 0.0), floor_mu=0.5)
-    world = world.replace(friction=world.friction.at[2].set(mu))
-    return _rollout(30)(world)[0].pos[2, 0]
-
-  grad = float(jax.grad(travel)(0.05))
+  grad = float(jax.grad(_top_travel)(0.05))
   eps = 1e-3
-  fd = (float(travel(0.05 + eps)) - float(travel(0.05 - eps))) / (2 * eps)
+  fd = (float(_top_travel(0.05 + eps)) - float(_top_travel(0.05 - eps))) / (2 * eps)
   assert grad < 0
   assert grad == pytest.approx(fd, rel=0.05)
 
@@ -94,14 +96,9 @@ def test_travel_has_a_finite_derivative_in_a_coefficient_at_zero():
   # mu_top = 0 and unbounded just above. min(mu_i, mu_j) has derivative 1 there, and the
   # gradient at 0 (a link without a budget, sliding: friction's tie rule) equals the
   # one-sided difference (travel is linear in the budget while the top box slips).
-  def travel(mu):
-    world = stack(0.0, vel=(5.0, 0.0), floor_mu=0.5)
-    world = world.replace(friction=world.friction.at[2].set(mu))
-    return _rollout(30)(world)[0].pos[2, 0]
-
-  grad = float(jax.grad(travel)(0.0))
+  grad = float(jax.grad(_top_travel)(0.0))
   eps = 1e-2
-  fd = (float(travel(eps)) - float(travel(0.0))) / eps
+  fd = (float(_top_travel(eps)) - float(_top_travel(0.0))) / eps
   assert grad < 0
   assert grad == pytest.approx(fd, rel=0.05)
 
